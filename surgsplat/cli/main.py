@@ -1,0 +1,47 @@
+"""`surgsplat <command>`: the command-line entry point.
+
+Each command lives in its own module of this package as a plain function with typer
+annotations; this module only registers them and turns user errors into one clear line.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+from rich.console import Console
+
+from surgsplat.errors import SurgsplatError
+
+app = typer.Typer(
+    name="surgsplat",
+    help="4D Gaussian-splat reconstruction of endoscopic surgical video, on the CPU.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.callback()
+def _root() -> None:
+    """surgsplat: endoscopic video in, deforming 3D tissue, meshes, videos and metrics out."""
+
+
+def _register() -> None:
+    from surgsplat.cli import info
+
+    app.command("info")(info.info_command)
+
+
+def main() -> None:
+    """Run the CLI; a SurgsplatError becomes `error: <message>` and exit status 2."""
+    _register()
+    try:
+        app(standalone_mode=True)
+    except SurgsplatError as err:
+        Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {err}", highlight=False)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,79 @@
+"""A scene's summary: the facts `surgsplat info` prints and `demo` shows."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from surgsplat.data.scene import Scene
+
+
+@dataclass(frozen=True)
+class SceneSummary:
+    """What a researcher wants to know about a scene before training on it."""
+
+    root: str
+    num_frames: int
+    width: int
+    height: int
+    focal_px: float
+    num_train: int
+    num_test: int
+    test_indices: list[int]
+    depth_unit: str
+    depth_min: float | None  # over valid (> 0) tissue pixels of all frames; None without depth
+    depth_max: float | None
+    depth_valid_share: float | None  # share of tissue pixels with depth > 0
+    tool_share_mean: float  # mean share of non-tissue (tool / outside view) pixels per frame
+    tool_share_max: float
+    has_masks: bool
+
+
+def summarise(scene: Scene) -> SceneSummary:
+    tool_shares = torch.tensor([1.0 - f.tissue.float().mean().item() for f in scene.frames])
+    depth_min = depth_max = valid_share = None
+    if scene.has_depth:
+        valid_counts = tissue_counts = 0
+        lows, highs = [], []
+        for frame in scene.frames:
+            values = frame.depth[frame.tissue]
+            values = values[values > 0]
+            valid_counts += values.numel()
+            tissue_counts += int(frame.tissue.sum())
+            if values.numel():
+                lows.append(values.min().item())
+                highs.append(values.max().item())
+        depth_min = min(lows) if lows else None
+        depth_max = max(highs) if highs else None
+        valid_share = valid_counts / max(tissue_counts, 1)
+    return SceneSummary(
+        root=str(scene.root), num_frames=len(scene.frames), width=scene.camera.width,
+        height=scene.camera.height, focal_px=scene.camera.focal,
+        num_train=len(scene.train_frames), num_test=len(scene.test_frames),
+        test_indices=[f.index for f in scene.test_frames], depth_unit=scene.depth_unit,
+        depth_min=depth_min, depth_max=depth_max, depth_valid_share=valid_share,
+        tool_share_mean=float(tool_shares.mean()), tool_share_max=float(tool_shares.max()),
+        has_masks=scene.has_masks)
+
+
+def format_summary(summary: SceneSummary) -> list[tuple[str, str]]:
+    """(label, value) rows for a table."""
+    rows = [
+        ("scene", summary.root),
+        ("frames", f"{summary.num_frames} ({summary.num_train} train, {summary.num_test} test: "
+                   f"i % 8 == 1 -> {summary.test_indices})"),
+        ("size", f"{summary.width} x {summary.height} px (W x H), focal {summary.focal_px:.2f} px"),
+    ]
+    if summary.depth_min is None:
+        rows.append(("depth", "none (monocular)"))
+    else:
+        rows.append(("depth", f"{summary.depth_min:.2f} .. {summary.depth_max:.2f} "
+                              f"{summary.depth_unit}, valid on "
+                              f"{100 * summary.depth_valid_share:.1f}% of tissue pixels"))
+    if summary.has_masks:
+        rows.append(("tool / excluded", f"mean {100 * summary.tool_share_mean:.1f}% of pixels, "
+                                        f"max {100 * summary.tool_share_max:.1f}%"))
+    else:
+        rows.append(("tool / excluded", "no masks (every pixel is tissue)"))
+    return rows

@@ -1,0 +1,16 @@
+"""Exceptions that the CLI reports as one line, without a traceback."""
+
+from pathlib import Path
+
+
+class SurgsplatError(Exception):
+    """A user-facing error: bad input, bad option, missing file. Its message says what to fix."""
+
+
+class DataError(SurgsplatError):
+    """A file or folder on disk is missing, unreadable or not what was expected."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path = Path(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")

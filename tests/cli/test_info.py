@@ -1,0 +1,31 @@
+"""`surgsplat info`: a summary for a good scene, one clear line for a bad one."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from surgsplat.data.layout import SceneMeta, SceneWriter
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_info_prints_summary(tmp_path: Path):
+    writer = SceneWriter(tmp_path / "s", focal=20.0, meta=SceneMeta(depth_unit="mm"))
+    for i in range(9):
+        writer.add_frame(np.full((16, 20, 3), 10 * i, dtype=np.uint8), np.full((16, 20), 50.0))
+    result = run_cli("info", str(writer.finish()))
+    assert result.returncode == 0, result.stderr
+    assert "9 (7 train, 2 test" in result.stdout and "mm" in result.stdout
+
+
+def test_info_on_bad_scene_is_one_line_without_traceback(tmp_path: Path):
+    result = run_cli("info", str(tmp_path / "missing"))
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:") and "missing" in lines[0]
