@@ -1,5 +1,6 @@
 """`surgsplat info`: a summary for a good scene, one clear line for a bad one."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -18,9 +19,13 @@ def test_info_prints_summary(tmp_path: Path):
     writer = SceneWriter(tmp_path / "s", focal=20.0, meta=SceneMeta(depth_unit="mm"))
     for i in range(9):
         writer.add_frame(np.full((16, 20, 3), 10 * i, dtype=np.uint8), np.full((16, 20), 50.0))
-    result = run_cli("info", str(writer.finish()))
+    scene_dir = str(writer.finish())
+    result = run_cli("info", scene_dir)
     assert result.returncode == 0, result.stderr
-    assert "9 (7 train, 2 test" in result.stdout and "mm" in result.stdout
+    assert "scene summary" in result.stdout and "mm" in result.stdout
+    summary = json.loads(run_cli("info", scene_dir, "--json").stdout)
+    assert (summary["num_frames"], summary["num_train"], summary["num_test"]) == (9, 7, 2)
+    assert summary["depth_min"] == summary["depth_max"] == 50.0
 
 
 def test_info_on_bad_scene_is_one_line_without_traceback(tmp_path: Path):
