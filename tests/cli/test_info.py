@@ -17,14 +17,14 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
 
 def test_info_prints_summary(tmp_path: Path):
     writer = SceneWriter(tmp_path / "s", focal=20.0, meta=SceneMeta(depth_unit="mm"))
-    for i in range(9):
+    for i in range(10):
         writer.add_frame(np.full((16, 20, 3), 10 * i, dtype=np.uint8), np.full((16, 20), 50.0))
     scene_dir = str(writer.finish())
     result = run_cli("info", scene_dir)
     assert result.returncode == 0, result.stderr
     assert "scene summary" in result.stdout and "mm" in result.stdout
     summary = json.loads(run_cli("info", scene_dir, "--json").stdout)
-    assert (summary["num_frames"], summary["num_train"], summary["num_test"]) == (9, 7, 2)
+    assert (summary["num_frames"], summary["num_train"], summary["num_test"]) == (10, 8, 2)
     assert summary["depth_min"] == summary["depth_max"] == 50.0
 
 
