@@ -1,0 +1,101 @@
+"""Canonical Gaussians: every per-Gaussian tensor in one ParameterDict.
+
+Keeping all per-Gaussian state (geometry, appearance and any per-Gaussian attributes of a
+deformation field) in one dict of [N, ...] parameters is what lets the densification strategy
+clone, split and prune Gaussians with one mechanism.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+SH_C0 = 0.28209479177387814
+"""Degree-0 spherical-harmonic basis constant: colour = SH_C0 * dc + 0.5."""
+
+GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
+
+
+@dataclass
+class GaussianConfig:
+    """How canonical Gaussians are created from an initial point cloud."""
+
+    sh_degree: int = 1
+    """Degree of the view-dependent spherical-harmonic colour (0 = diffuse colour only)."""
+    init_opacity: float = 0.3
+    """Opacity of every Gaussian at initialisation."""
+    init_scale_factor: float = 0.8
+    """Initial isotropic scale = this x the mean distance to the 3 nearest neighbours."""
+    max_gaussians: int = 200_000
+    """Hard cap on the number of Gaussians (densification stops adding beyond it)."""
+
+
+def rgb_to_sh_dc(rgb: Tensor) -> Tensor:
+    """[N, 3] colour in [0, 1] -> [N, 3] degree-0 SH coefficients."""
+    return (rgb - 0.5) / SH_C0
+
+
+def num_sh_coeffs(degree: int) -> int:
+    return (degree + 1) ** 2
+
+
+def knn_mean_distance(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
+    """[N, 3] -> [N] mean distance to the k nearest other points (exact, via a KD-tree)."""
+    from scipy.spatial import cKDTree
+
+    array = points.detach().double().cpu().numpy()
+    distances, _ = cKDTree(array).query(array, k=k + 1, workers=-1)
+    return torch.from_numpy(distances[:, 1:].mean(axis=1)).to(points)
+
+
+class GaussianModel(nn.Module):
+    """N canonical Gaussians.
+
+    params holds, each [N, ...]: means [N,3] (scene units), log_scales [N,3], quats [N,4]
+    (w,x,y,z, unnormalised), opacity_logits [N], sh_dc [N,3], sh_rest [N,K-1,3] with
+    K = (sh_degree+1)^2, plus any per-Gaussian attributes of the deformation field.
+    """
+
+    def __init__(self, params: dict[str, Tensor], sh_degree: int):
+        super().__init__()
+        sizes = {name: value.shape[0] for name, value in params.items()}
+        if len(set(sizes.values())) != 1:
+            raise ValueError(f"per-Gaussian tensors disagree on N: {sizes}")
+        self.sh_degree = sh_degree
+        self.params = nn.ParameterDict({k: nn.Parameter(v) for k, v in params.items()})
+
+    @classmethod
+    def from_points(cls, points: Tensor, colors: Tensor, config: GaussianConfig,
+                    attributes: dict[str, Tensor] | None = None) -> "GaussianModel":
+        """points [N,3], colors [N,3] in [0,1]; attributes: extra per-Gaussian tensors."""
+        n = points.shape[0]
+        scale = knn_mean_distance(points).clamp_min(1e-4) * config.init_scale_factor
+        quats = torch.zeros(n, 4)
+        quats[:, 0] = 1.0
+        opacity = torch.full((n,), config.init_opacity)
+        params = {
+            "means": points.float().clone(),
+            "log_scales": scale.log()[:, None].repeat(1, 3).float(),
+            "quats": quats,
+            "opacity_logits": torch.logit(opacity),
+            "sh_dc": rgb_to_sh_dc(colors.float()),
+            "sh_rest": torch.zeros(n, num_sh_coeffs(config.sh_degree) - 1, 3),
+        }
+        params.update(attributes or {})
+        return cls(params, config.sh_degree)
+
+    @property
+    def num_gaussians(self) -> int:
+        return self.params["means"].shape[0]
+
+    @property
+    def attributes(self) -> dict[str, Tensor]:
+        """Per-Gaussian tensors that are not geometry or appearance (deformation-field state)."""
+        return {k: v for k, v in self.params.items() if k not in GEOMETRY_KEYS}
+
+    def sh_coeffs(self, dc_offset: Tensor | None = None) -> Tensor:
+        """[N, K, 3] SH coefficients; dc_offset [N, 3] is added to the degree-0 term."""
+        dc = self.params["sh_dc"] if dc_offset is None else self.params["sh_dc"] + dc_offset
+        return torch.cat([dc[:, None, :], self.params["sh_rest"]], dim=1)

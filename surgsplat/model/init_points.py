@@ -1,0 +1,127 @@
+"""Initial point cloud of the canonical Gaussians, from the scene's depth maps.
+
+Frame 0's tissue pixels are back-projected; what frame 0 cannot give is filled from later
+frames, as in Deform3DGS's motion-aware point fusion (MAPF) and EndoPlanar's Mixture-of-Gaussians
+fusion (MOGF, `endoplanar.txt` 2.2):
+
+- occlusion filling (both): pixels hidden by the tool in frame 0 are taken from the first later
+  frame where they are tissue with valid depth;
+- motion: MAPF adds pixels of later frames whose depth moved by more than a threshold from frame
+  0; MOGF instead learns a MOG2 background model over frames 1..N-1, applies it to frame 0, and
+  adds the later-frame pixels of the foreground (moving) region it finds.
+
+Without depth (monocular video) the points lie on a fronto-parallel plane at a chosen distance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+from surgsplat.data.scene import Frame, Scene
+from surgsplat.errors import DataError
+
+
+@dataclass
+class InitConfig:
+    """How the initial point cloud is built."""
+
+    fusion: Literal["none", "mapf", "mogf"] = "mapf"
+    """Which later-frame pixels join frame 0: none, motion-aware fusion, or MOG2 fusion."""
+    pixel_stride: int = 2
+    """Use every stride-th pixel in x and y."""
+    max_points: int = 40_000
+    """Random subsample to at most this many points (seeded)."""
+    motion_threshold: float = 1.0
+    """MAPF: depth change (scene units) that marks a pixel as moving."""
+    mog_var_threshold: float = 16.0
+    """MOGF: MOG2 variance threshold (OpenCV's varThreshold)."""
+    monocular_depth: float = 50.0
+    """Scenes without depth: distance of the initial plane, in scene units."""
+    seed: int = 0
+    """Seed of the subsampling."""
+
+
+@dataclass
+class PointCloud:
+    means: Tensor  # [M, 3] camera-space positions, scene units
+    colors: Tensor  # [M, 3] RGB in [0, 1]
+
+
+def pixel_rays(K: Tensor, height: int, width: int) -> Tensor:
+    """[H, W, 3] camera-space ray directions with z = 1 through the pixel centres (x + 0.5)."""
+    ys, xs = torch.meshgrid(torch.arange(height, dtype=torch.float32) + 0.5,
+                            torch.arange(width, dtype=torch.float32) + 0.5, indexing="ij")
+    return torch.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1],
+                        torch.ones_like(xs)], dim=-1)
+
+
+def _stride_mask(height: int, width: int, stride: int) -> Tensor:
+    mask = torch.zeros(height, width, dtype=torch.bool)
+    mask[::stride, ::stride] = True
+    return mask
+
+
+def _mog_motion_mask(frames: list[Frame], var_threshold: float) -> Tensor:
+    """[H, W] bool: MOG2 foreground of frame 0 under a background learnt on frames 1..N-1."""
+    subtractor = cv2.createBackgroundSubtractorMOG2(history=len(frames), varThreshold=var_threshold,
+                                                    detectShadows=False)
+    as_uint8 = [(f.image.numpy() * 255).astype(np.uint8) for f in frames]
+    for image in as_uint8[1:]:
+        subtractor.apply(image, learningRate=-1)
+    foreground = subtractor.apply(as_uint8[0], learningRate=0)
+    return torch.from_numpy(foreground > 0)
+
+
+def _selected_pixels(scene: Scene, config: InitConfig) -> list[tuple[Frame, Tensor]]:
+    """(frame, [H, W] bool) pairs of the pixels that become points."""
+    frames = scene.train_frames
+    first = frames[0]
+    stride = _stride_mask(scene.camera.height, scene.camera.width, config.pixel_stride)
+    valid = [f.tissue & (f.depth > 0) & stride for f in frames]
+    chosen = [(first, valid[0])]
+    if config.fusion == "none":
+        return chosen
+    covered = valid[0].clone()
+    motion = None
+    if config.fusion == "mogf":
+        motion = _mog_motion_mask(frames, config.mog_var_threshold)
+    for frame, frame_valid in zip(frames[1:], valid[1:]):
+        new = frame_valid & ~covered
+        if config.fusion == "mapf":
+            moved = (frame.depth - first.depth).abs() > config.motion_threshold
+            new |= frame_valid & moved & valid[0]
+        else:
+            new |= frame_valid & motion
+        covered |= new
+        if new.any():
+            chosen.append((frame, new))
+    return chosen
+
+
+def initial_points(scene: Scene, config: InitConfig) -> PointCloud:
+    """The initial point cloud of `scene` (train frames only), at most config.max_points."""
+    camera = scene.camera
+    rays = pixel_rays(camera.K, camera.height, camera.width)
+    if scene.has_depth:
+        means, colors = [], []
+        for frame, mask in _selected_pixels(scene, config):
+            means.append(rays[mask] * frame.depth[mask][:, None])
+            colors.append(frame.image[mask])
+        points, rgb = torch.cat(means), torch.cat(colors)
+    else:
+        first = scene.train_frames[0]
+        mask = first.tissue & _stride_mask(camera.height, camera.width, config.pixel_stride)
+        points, rgb = rays[mask] * config.monocular_depth, first.image[mask]
+    if points.shape[0] == 0:
+        raise DataError(scene.root, "no tissue pixel with valid depth to initialise Gaussians from")
+    if points.shape[0] > config.max_points:
+        generator = torch.Generator().manual_seed(config.seed)
+        keep = torch.randperm(points.shape[0], generator=generator)[: config.max_points]
+        points, rgb = points[keep], rgb[keep]
+    return PointCloud(means=points.contiguous(), colors=rgb.contiguous())

@@ -1,0 +1,167 @@
+"""Densification and pruning as a Strategy object with explicit state (gsplat's design).
+
+The trainer calls `step_post_backward(...)` after each backward pass; the strategy accumulates
+screen-space gradient statistics and, on its schedule, clones small Gaussians with large
+gradients, splits large ones, prunes transparent or oversized ones, and resets opacities.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.rotation import quaternion_to_matrix
+from surgsplat.train.per_gaussian import MOMENT_KEYS, append_gaussians, keep_gaussians
+
+
+@dataclass
+class DensifyConfig:
+    """When and how Gaussians are added and removed."""
+
+    start_iter: int = 300
+    """First iteration at which densification may run."""
+    stop_iter: int = 2000
+    """No densification or opacity reset after this iteration (pruning stops too)."""
+    every: int = 100
+    """Densify and prune every this many iterations."""
+    grad_threshold: float = 0.0008
+    """Mean absolute screen-space gradient (NDC-scaled, per visible step) above which a Gaussian
+    is densified."""
+    percent_dense: float = 0.01
+    """Gaussians larger than this share of the scene extent are split, smaller ones cloned."""
+    split_factor: float = 1.6
+    """A split Gaussian's two children have the parent's scale divided by this."""
+    min_opacity: float = 0.005
+    """Prune Gaussians less opaque than this."""
+    max_world_scale: float = 0.1
+    """Prune Gaussians larger than this share of the scene extent."""
+    max_screen_radius: float = 0.0
+    """Prune Gaussians whose projected radius exceeded this many pixels (0 = no limit)."""
+    opacity_reset_every: int = 3000
+    """Reset opacities to reset_opacity every this many iterations (0 = never)."""
+    reset_opacity: float = 0.01
+    """Opacity ceiling applied by a reset."""
+
+
+class DensifyStrategy:
+    """Explicit state: grad_sum [N], visible_count [N], max_radius [N] (pixels)."""
+
+    def __init__(self, config: DensifyConfig, scene_extent: float, max_gaussians: int):
+        self.config = config
+        self.scene_extent = scene_extent
+        self.max_gaussians = max_gaussians
+        self.grad_sum = torch.zeros(0)
+        self.visible_count = torch.zeros(0)
+        self.max_radius = torch.zeros(0)
+
+    def state_dict(self) -> dict[str, Tensor | float]:
+        return {"grad_sum": self.grad_sum, "visible_count": self.visible_count,
+                "max_radius": self.max_radius, "scene_extent": self.scene_extent}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.grad_sum = state["grad_sum"]
+        self.visible_count = state["visible_count"]
+        self.max_radius = state["max_radius"]
+        self.scene_extent = float(state["scene_extent"])
+
+    def _ensure_size(self, n: int) -> None:
+        if self.grad_sum.shape[0] != n:
+            self.grad_sum = torch.zeros(n)
+            self.visible_count = torch.zeros(n)
+            self.max_radius = torch.zeros(n)
+
+    def step_post_backward(self, iteration: int, model: GaussianModel,
+                           optimizer: torch.optim.Optimizer, screen_grad: Tensor,
+                           radii: Tensor) -> None:
+        """screen_grad [N] NDC-scaled screen-space gradient norm of this step; radii [N] px."""
+        config = self.config
+        if iteration > config.stop_iter:
+            return
+        self._ensure_size(model.num_gaussians)
+        visible = radii > 0
+        self.grad_sum[visible] += screen_grad[visible]
+        self.visible_count[visible] += 1
+        self.max_radius = torch.maximum(self.max_radius, radii.float())
+        if iteration >= config.start_iter and iteration % config.every == 0:
+            self._densify(model, optimizer)
+            self._prune(model, optimizer)
+            self._ensure_size(model.num_gaussians)
+            self.grad_sum.zero_()
+            self.visible_count.zero_()
+            self.max_radius.zero_()
+        if config.opacity_reset_every and iteration % config.opacity_reset_every == 0:
+            self._reset_opacity(model, optimizer)
+
+    @torch.no_grad()
+    def _densify(self, model: GaussianModel, optimizer: torch.optim.Optimizer) -> None:
+        config = self.config
+        room = self.max_gaussians - model.num_gaussians
+        if room <= 0:
+            return
+        mean_grad = self.grad_sum / self.visible_count.clamp_min(1)
+        candidates = mean_grad > config.grad_threshold
+        max_scale = model.params["log_scales"].exp().max(dim=1).values
+        large = max_scale > config.percent_dense * self.scene_extent
+        clone, split = candidates & ~large, candidates & large
+        clone_idx = _strongest(clone, mean_grad, room)
+        split_idx = _strongest(split, mean_grad, max(room - clone_idx.numel(), 0) // 2)
+        rows = {name: value[clone_idx] for name, value in model.params.items()}
+        split_rows = self._split_rows(model, split_idx)
+        new_rows = {name: torch.cat([rows[name], split_rows[name]]) for name in rows}
+        if new_rows["means"].shape[0] == 0:
+            return
+        append_gaussians(model, optimizer, new_rows)
+        if split_idx.numel():
+            # The split parents are replaced by their two children: drop the parents.
+            keep = torch.ones(model.num_gaussians, dtype=torch.bool)
+            keep[split_idx] = False
+            keep_gaussians(model, optimizer, keep)
+
+    def _split_rows(self, model: GaussianModel, index: Tensor) -> dict[str, Tensor]:
+        """Two children per parent, positioned by sampling the parent's Gaussian."""
+        params = {name: value[index] for name, value in model.params.items()}
+        scales = params["log_scales"].exp()
+        quats = torch.nn.functional.normalize(params["quats"], dim=-1)
+        rotation = quaternion_to_matrix(quats)
+        children = {name: value.repeat_interleave(2, dim=0) for name, value in params.items()}
+        offsets = torch.randn(index.numel() * 2, 3) * scales.repeat_interleave(2, dim=0)
+        rotated = (rotation.repeat_interleave(2, dim=0) @ offsets[..., None])[..., 0]
+        children["means"] = children["means"] + rotated
+        children["log_scales"] = children["log_scales"] - math.log(self.config.split_factor)
+        return children
+
+    @torch.no_grad()
+    def _prune(self, model: GaussianModel, optimizer: torch.optim.Optimizer) -> None:
+        config = self.config
+        opacity = torch.sigmoid(model.params["opacity_logits"])
+        prune = opacity < config.min_opacity
+        max_scale = model.params["log_scales"].exp().max(dim=1).values
+        prune |= max_scale > config.max_world_scale * self.scene_extent
+        if config.max_screen_radius > 0 and self.max_radius.shape[0] == prune.shape[0]:
+            prune |= self.max_radius > config.max_screen_radius
+        if prune.all():
+            prune[torch.argmax(opacity)] = False
+        if prune.any():
+            keep_gaussians(model, optimizer, ~prune)
+
+    @torch.no_grad()
+    def _reset_opacity(self, model: GaussianModel, optimizer: torch.optim.Optimizer) -> None:
+        ceiling = math.log(self.config.reset_opacity / (1 - self.config.reset_opacity))
+        logits = model.params["opacity_logits"]
+        logits.clamp_(max=ceiling)
+        for key in MOMENT_KEYS:
+            moment = optimizer.state.get(logits, {}).get(key)
+            if moment is not None:
+                moment.zero_()
+
+
+def _strongest(candidates: Tensor, score: Tensor, limit: int) -> Tensor:
+    """Indices of at most `limit` candidates [N] bool, highest score first."""
+    index = candidates.nonzero()[:, 0]
+    if index.numel() > limit:
+        index = index[torch.topk(score[index], limit).indices]
+    return index
