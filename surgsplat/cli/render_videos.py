@@ -1,0 +1,65 @@
+"""`surgsplat render RUN`: mp4 videos of the reconstruction over all frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import torch
+import typer
+from rich.console import Console
+
+from surgsplat.cli.progress import progress_bar
+from surgsplat.export.video import colorize_depth, even_size, to_uint8, write_video
+from surgsplat.model.dynamic import render_time
+from surgsplat.train.run import TrainedRun, load_trained_run
+
+VIDEO_NAMES = ("rgb.mp4", "depth.mp4", "side_by_side.mp4")
+
+
+def depth_range(run: TrainedRun) -> tuple[float, float]:
+    """Colour-map range: 1st-99th percentile of the scene's valid depth (or of frame 0's
+    rendered depth for scenes without depth)."""
+    if run.scene.has_depth:
+        values = torch.cat([f.depth[f.depth > 0][::97] for f in run.scene.frames])
+    else:
+        out = render_time(run.model, run.scene.camera, 0.0)
+        values = out.depth[out.alpha > 0.5]
+    if values.numel() == 0:
+        return 0.0, 1.0
+    return float(values.quantile(0.01)), float(values.quantile(0.99))
+
+
+def write_run_videos(run: TrainedRun, out_dir: Path, fps: float) -> list[Path]:
+    """Render every frame of the run's scene; write rgb, depth and side-by-side videos."""
+    near, far = depth_range(run)
+    background = torch.tensor(run.config.train.background, dtype=torch.float32)
+    frames = run.scene.frames
+    rgb_frames, depth_frames, side_frames = [], [], []
+    with progress_bar() as bar:
+        task = bar.add_task("render", total=len(frames))
+        for frame in frames:
+            out = render_time(run.model, run.scene.camera, frame.time, background)
+            rgb = to_uint8(out.rgb.numpy())
+            depth = colorize_depth(out.depth.numpy(), near, far)
+            rgb_frames.append(even_size(rgb))
+            depth_frames.append(even_size(depth))
+            side_frames.append(even_size(np.concatenate([to_uint8(frame.image.numpy()), rgb,
+                                                         depth], axis=1)))
+            bar.advance(task)
+    paths = [out_dir / name for name in VIDEO_NAMES]
+    for path, video in zip(paths, (rgb_frames, depth_frames, side_frames)):
+        write_video(path, video, fps)
+    return paths
+
+
+def render_command(
+    run_dir: Annotated[Path, typer.Argument(help="Run folder written by `surgsplat train`.")],
+    out: Annotated[Path | None, typer.Option(help="Video folder (default RUN/videos).")] = None,
+    fps: Annotated[float, typer.Option(help="Frames per second of the videos.")] = 15.0,
+) -> None:
+    """Render RGB, colour-mapped depth and input|render|depth side-by-side mp4 videos."""
+    run = load_trained_run(run_dir)
+    paths = write_run_videos(run, out or run_dir / "videos", fps)
+    Console().print("videos: " + ", ".join(str(p) for p in paths))

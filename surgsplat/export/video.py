@@ -1,0 +1,53 @@
+"""MP4 videos (H.264 through imageio-ffmpeg's bundled ffmpeg) and depth colour maps."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import cv2
+import imageio_ffmpeg
+import numpy as np
+
+
+def write_video(path: Path, frames: Iterable[np.ndarray], fps: float = 15.0) -> int:
+    """Write uint8 RGB frames [H, W, 3] (all the same size, H and W even) to an H.264 mp4;
+    returns the number of frames written."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = None
+    count = 0
+    try:
+        for frame in frames:
+            if writer is None:
+                height, width = frame.shape[:2]
+                writer = imageio_ffmpeg.write_frames(
+                    str(path), (width, height), fps=fps, codec="libx264", pix_fmt_in="rgb24",
+                    pix_fmt_out="yuv420p", macro_block_size=2, quality=8,
+                    output_params=["-loglevel", "error"])
+                writer.send(None)
+            writer.send(np.ascontiguousarray(frame, dtype=np.uint8))
+            count += 1
+    finally:
+        if writer is not None:
+            writer.close()
+    return count
+
+
+def even_size(image: np.ndarray) -> np.ndarray:
+    """Crop the last row/column if needed so both sides are even (yuv420p needs it)."""
+    height, width = image.shape[:2]
+    return image[: height - height % 2, : width - width % 2]
+
+
+def colorize_depth(depth: np.ndarray, near: float, far: float) -> np.ndarray:
+    """[H, W] depth -> uint8 RGB [H, W, 3], turbo colour map over [near, far]; 0 = black."""
+    scaled = np.clip((depth - near) / max(far - near, 1e-9), 0.0, 1.0)
+    coloured = cv2.applyColorMap((255 * (1.0 - scaled)).astype(np.uint8), cv2.COLORMAP_TURBO)
+    coloured = coloured[..., ::-1].copy()
+    coloured[depth <= 0] = 0
+    return coloured
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """Float RGB in [0, 1] -> uint8."""
+    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
