@@ -12,8 +12,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-SH_C0 = 0.28209479177387814
-"""Degree-0 spherical-harmonic basis constant: colour = SH_C0 * dc + 0.5."""
+from surgsplat.render.sh import SH_C0
 
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 

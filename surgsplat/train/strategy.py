@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.model.rotation import quaternion_to_matrix
+from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.per_gaussian import MOMENT_KEYS, append_gaussians, keep_gaussians
 
 

@@ -1,0 +1,96 @@
+// Tile binning: each drawn Gaussian goes to every 16x16 tile its alpha >= 1/255 box touches;
+// a global radix sort by depth first makes every tile list front-to-back without per-tile sorts.
+#include <algorithm>
+#include <array>
+
+#include "common.h"
+
+namespace surgsplat {
+namespace {
+
+// Pixel box where o * exp(-q/2) >= 1/255, i.e. q <= 2 ln(255 o): the ellipse's extents are
+// sqrt(q_max * cov_xx) and sqrt(q_max * cov_yy), with cov = conic^-1.
+PixelBox alpha_box(const float* mean, const float* conic, float opacity, int width, int height) {
+    PixelBox box{0, 0, -1, -1};
+    const float q_max = 2.0f * std::log(opacity / kAlphaMin);
+    const float det = conic[0] * conic[2] - conic[1] * conic[1];
+    if (!(q_max > 0.0f) || !(det > 0.0f)) return box;
+    const float ext_x = std::sqrt(q_max * conic[2] / det);
+    const float ext_y = std::sqrt(q_max * conic[0] / det);
+    // pixel column i has centre i + 0.5
+    const float x0 = std::ceil(mean[0] - ext_x - 0.5f), x1 = std::floor(mean[0] + ext_x - 0.5f);
+    const float y0 = std::ceil(mean[1] - ext_y - 0.5f), y1 = std::floor(mean[1] + ext_y - 0.5f);
+    if (x1 < 0.0f || y1 < 0.0f || x0 > width - 1.0f || y0 > height - 1.0f) return box;
+    box.x0 = static_cast<int32_t>(std::max(x0, 0.0f));
+    box.y0 = static_cast<int32_t>(std::max(y0, 0.0f));
+    box.x1 = static_cast<int32_t>(std::min(x1, width - 1.0f));
+    box.y1 = static_cast<int32_t>(std::min(y1, height - 1.0f));
+    return box;
+}
+
+// Indices of `keys` (non-negative floats) in increasing key order: LSD radix sort on the bits,
+// which order like the values for non-negative IEEE floats.
+std::vector<int32_t> sort_by_depth(const std::vector<int32_t>& items, const float* depths) {
+    const size_t m = items.size();
+    std::vector<uint32_t> keys(m), keys_tmp(m);
+    std::vector<int32_t> order(items), order_tmp(m);
+    for (size_t i = 0; i < m; ++i) {
+        const float d = std::max(depths[items[i]], 0.0f);
+        std::memcpy(&keys[i], &d, sizeof(uint32_t));
+    }
+    constexpr int kBits = 11, kBuckets = 1 << kBits;
+    for (int shift = 0; shift < 32; shift += kBits) {
+        std::array<uint32_t, kBuckets> count{};
+        for (size_t i = 0; i < m; ++i) ++count[(keys[i] >> shift) & (kBuckets - 1)];
+        uint32_t sum = 0;
+        for (auto& c : count) { const uint32_t here = c; c = sum; sum += here; }
+        for (size_t i = 0; i < m; ++i) {
+            const uint32_t slot = count[(keys[i] >> shift) & (kBuckets - 1)]++;
+            keys_tmp[slot] = keys[i];
+            order_tmp[slot] = order[i];
+        }
+        keys.swap(keys_tmp);
+        order.swap(order_tmp);
+    }
+    return order;
+}
+
+}  // namespace
+
+TileBins bin_gaussians(const float* means2d, const float* conics, const float* opacities,
+                       const float* depths, const int32_t* radii, int64_t n, int width,
+                       int height) {
+    TileBins bins;
+    bins.tiles_x = (width + kTile - 1) / kTile;
+    bins.tiles_y = (height + kTile - 1) / kTile;
+    const int tiles = bins.tiles_x * bins.tiles_y;
+    bins.boxes.assign(n, PixelBox{0, 0, -1, -1});
+    std::vector<int32_t> drawn;
+    drawn.reserve(n);
+    for (int64_t i = 0; i < n; ++i) {
+        if (radii[i] <= 0) continue;
+        bins.boxes[i] = alpha_box(means2d + 2 * i, conics + 3 * i, opacities[i], width, height);
+        if (bins.boxes[i].x1 >= bins.boxes[i].x0) drawn.push_back(static_cast<int32_t>(i));
+    }
+    const std::vector<int32_t> order = sort_by_depth(drawn, depths);
+
+    bins.offsets.assign(tiles + 1, 0);
+    for (int32_t g : order) {
+        const PixelBox& b = bins.boxes[g];
+        for (int ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
+            for (int tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx)
+                ++bins.offsets[ty * bins.tiles_x + tx + 1];
+    }
+    for (int t = 0; t < tiles; ++t) bins.offsets[t + 1] += bins.offsets[t];
+    bins.ids.resize(bins.offsets[tiles]);
+    std::vector<int32_t> cursor(bins.offsets.begin(), bins.offsets.end() - 1);
+    for (int32_t g : order) {
+        const PixelBox& b = bins.boxes[g];
+        for (int ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
+            for (int tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx)
+                bins.ids[cursor[ty * bins.tiles_x + tx]++] = g;
+    }
+    return bins;
+}
+
+}  // namespace surgsplat

@@ -1,0 +1,103 @@
+"""Projection of 3D Gaussians to screen-space ellipses (EWA splatting), in PyTorch with autograd.
+
+Pixel (column i, row j) has its centre at (i + 0.5, j + 0.5); K maps camera coordinates to these
+continuous pixel coordinates. The camera looks down +z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from surgsplat.render.rotation import quaternion_to_matrix
+
+FOV_CLAMP = 1.3
+"""Means outside 1.3x the field of view use the Jacobian at the clamped position (as 3DGS)."""
+
+
+@dataclass
+class Projection:
+    """Screen-space Gaussians; entries with radii == 0 are culled and never rasterised."""
+
+    means2d: Tensor  # [N, 2] pixel coordinates (x, y)
+    conics: Tensor  # [N, 3] inverse 2D covariance (a, b, c): q = a dx^2 + 2 b dx dy + c dy^2
+    depths: Tensor  # [N] camera-space z, scene units
+    radii: Tensor  # [N] int32 3-sigma radius in pixels, 0 = culled
+    means_camera: Tensor  # [N, 3] camera-space means
+    rotations_camera: Tensor  # [N, 3, 3] Gaussian axes in camera space (columns)
+
+
+def covariance_3d(scales: Tensor, quats: Tensor) -> tuple[Tensor, Tensor]:
+    """[N,3] scales, [N,4] quaternions -> ([N,3,3] covariance R S S R^T, [N,3,3] R)."""
+    rotation = quaternion_to_matrix(quats)
+    axes = rotation * scales[:, None, :]
+    return axes @ axes.transpose(1, 2), rotation
+
+
+def project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int, height: int,
+            world_to_camera: Tensor | None = None, near: float = 0.01,
+            lowpass: float = 0.3) -> Projection:
+    """Project Gaussians (means [N,3], scales [N,3] linear, quats [N,4] (w,x,y,z)) with the pinhole
+    K [3,3] and pose world_to_camera [4,4] (identity when None).
+
+    The 2D covariance is J W Sigma W^T J^T + lowpass * I (EWA with a `lowpass` pixel dilation);
+    Gaussians with depth below `near`, a degenerate covariance, or a 3-sigma box entirely outside
+    the image get radius 0.
+    """
+    dtype = means.dtype
+    K = K.to(dtype)
+    if world_to_camera is None:
+        world_to_camera = torch.eye(4, dtype=dtype)
+    world_to_camera = world_to_camera.to(dtype)
+    R_wc, t_wc = world_to_camera[:3, :3], world_to_camera[:3, 3]
+    means_cam = means @ R_wc.T + t_wc
+    x, y, z = means_cam.unbind(-1)
+    in_front = z > near
+    z_safe = torch.where(in_front, z, torch.full_like(z, near))
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+
+    tan_x = FOV_CLAMP * 0.5 * width / fx
+    tan_y = FOV_CLAMP * 0.5 * height / fy
+    x_clamped = torch.clamp(x / z_safe, -tan_x, tan_x) * z_safe
+    y_clamped = torch.clamp(y / z_safe, -tan_y, tan_y) * z_safe
+    zeros = torch.zeros_like(z)
+    jacobian = torch.stack([
+        fx / z_safe, zeros, -fx * x_clamped / z_safe**2,
+        zeros, fy / z_safe, -fy * y_clamped / z_safe**2,
+    ], dim=-1).reshape(-1, 2, 3)
+
+    cov3d, rotation = covariance_3d(scales, quats)
+    cov_cam = R_wc @ cov3d @ R_wc.T
+    cov2d = jacobian @ cov_cam @ jacobian.transpose(1, 2)
+    cov_xx = cov2d[:, 0, 0] + lowpass
+    cov_xy = cov2d[:, 0, 1]
+    cov_yy = cov2d[:, 1, 1] + lowpass
+    det = cov_xx * cov_yy - cov_xy**2
+    valid = in_front & (det > 0)
+    det_safe = torch.where(valid, det, torch.ones_like(det))
+    conics = torch.stack([cov_yy / det_safe, -cov_xy / det_safe, cov_xx / det_safe], dim=-1)
+
+    means2d = torch.stack([fx * x / z_safe + cx, fy * y / z_safe + cy], dim=-1)
+    with torch.no_grad():
+        half_trace = 0.5 * (cov_xx + cov_yy)
+        big_eigen = half_trace + torch.sqrt(torch.clamp(half_trace**2 - det, min=0.01))
+        radii = torch.ceil(3.0 * torch.sqrt(big_eigen))
+        on_screen = ((means2d[:, 0] + radii > 0) & (means2d[:, 0] - radii < width)
+                     & (means2d[:, 1] + radii > 0) & (means2d[:, 1] - radii < height))
+        radii = torch.where(valid & on_screen & torch.isfinite(radii), radii, 0.0)
+        radii = radii.clamp(max=float(2 * max(width, height) + 1)).to(torch.int32)
+    return Projection(means2d=means2d, conics=conics, depths=z, radii=radii,
+                      means_camera=means_cam, rotations_camera=R_wc @ rotation)
+
+
+def camera_ray_directions(K: Tensor, width: int, height: int) -> Tensor:
+    """[H, W, 3] rays K^-1 [u, v, 1] through the pixel centres (z component 1)."""
+    K = K.to(torch.float32)
+    u = torch.arange(width, dtype=torch.float32) + 0.5
+    v = torch.arange(height, dtype=torch.float32) + 0.5
+    vv, uu = torch.meshgrid(v, u, indexing="ij")
+    return torch.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1],
+                        torch.ones_like(uu)], dim=-1)
+

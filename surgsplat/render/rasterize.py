@@ -1,0 +1,111 @@
+"""Rasterisation of screen-space Gaussians into N feature channels: one contract, two backends.
+
+`native`: the C++/OpenMP tile kernels in csrc/rasterize (float32). `reference`: the dense
+PyTorch version in reference.py (any dtype, autograd). `auto` picks native for float32 inputs
+when it is built.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from surgsplat.render.native import native_module
+from surgsplat.render.reference import rasterize_reference
+
+Backend = Literal["auto", "native", "reference"]
+
+
+class _NativeRasterize(torch.autograd.Function):
+    """Autograd wrapper of the native forward/backward kernels."""
+
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height, absgrad):
+        native = native_module()
+        inputs = [t.detach().contiguous() for t in (means2d, conics, opacities, features)]
+        channels = features.shape[1]
+        image = torch.empty(height, width, channels)
+        transmittance = torch.empty(height, width)
+        last_entry = torch.empty(height, width, dtype=torch.int32)
+        bins = native.rasterize_forward(
+            *(t.numpy() for t in inputs), depths.detach().contiguous().numpy(),
+            radii.contiguous().numpy(), width, height, image.numpy(), transmittance.numpy(),
+            last_entry.numpy())
+        ctx.bins, ctx.size, ctx.absgrad = bins, (width, height), absgrad
+        ctx.save_for_backward(*inputs, transmittance, last_entry)
+        return image, 1.0 - transmittance
+
+    @staticmethod
+    def backward(ctx, grad_image, grad_alpha):
+        native = native_module()
+        means2d, conics, opacities, features, transmittance, last_entry = ctx.saved_tensors
+        width, height = ctx.size
+        grads = [torch.empty_like(means2d), torch.empty_like(conics),
+                 torch.empty_like(opacities), torch.zeros_like(features)]
+        abs_grad = torch.empty_like(means2d)
+        native.rasterize_backward(
+            ctx.bins, means2d.numpy(), conics.numpy(), opacities.numpy(), features.numpy(),
+            width, height, transmittance.numpy(), last_entry.numpy(),
+            _dense(grad_image, (height, width, features.shape[1])).numpy(),
+            _dense(grad_alpha, (height, width)).numpy(), *(g.numpy() for g in grads),
+            abs_grad.numpy())
+        if ctx.absgrad is not None:
+            ctx.absgrad += abs_grad.norm(dim=1)
+        return (*grads, None, None, None, None, None)
+
+
+def _dense(grad: Tensor | None, shape: tuple[int, ...]) -> Tensor:
+    return torch.zeros(shape) if grad is None else grad.contiguous().to(torch.float32)
+
+
+def check_finite(**tensors: Tensor) -> None:
+    """ValueError naming the first input with NaN or Inf entries."""
+    for name, tensor in tensors.items():
+        if not bool(torch.isfinite(tensor).all()):
+            bad = int((~torch.isfinite(tensor)).sum())
+            raise ValueError(f"rasterize: {name} has {bad} non-finite (NaN or Inf) entries")
+
+
+def resolve_backend(backend: Backend, dtype: torch.dtype) -> Literal["native", "reference"]:
+    """The backend `auto` means here: native for float32 when built, else the reference."""
+    if backend == "reference":
+        return "reference"
+    if dtype != torch.float32:
+        if backend == "native":
+            raise ValueError(f"rasterize: the native backend takes float32, got {dtype}")
+        return "reference"
+    if native_module() is None:
+        if backend == "native":
+            raise RuntimeError("rasterize: the native module is not built")
+        return "reference"
+    return "native"
+
+
+def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
+              depths: Tensor, radii: Tensor, width: int, height: int,
+              absgrad: Tensor | None = None, backend: Backend = "auto") -> tuple[Tensor, Tensor]:
+    """Alpha-composite Gaussians front to back into (image [H,W,C], alpha [H,W]).
+
+    means2d [N,2] pixels, conics [N,3] (a, b, c), opacities [N] in [0,1], features [N,C] (any C),
+    depths [N] (sort key), radii [N] int (0 = culled: not drawn, no gradient).
+    absgrad [N], when given, receives during backward the per-Gaussian sum over pixels of the
+    absolute screen-space gradient of the mean (the norm of the summed |dL/dx|, |dL/dy|).
+    Raises ValueError on NaN/Inf inputs of drawn Gaussians.
+    """
+    if features.ndim != 2 or features.shape[0] != means2d.shape[0]:
+        raise ValueError(f"rasterize: features must be [N, C] with N = {means2d.shape[0]}, "
+                         f"got {tuple(features.shape)}")
+    if width < 1 or height < 1:
+        raise ValueError(f"rasterize: image size must be positive, got {width}x{height}")
+    drawn = radii > 0
+    check_finite(means2d=means2d.detach()[drawn], conics=conics.detach()[drawn],
+                 opacities=opacities.detach()[drawn], features=features.detach()[drawn],
+                 depths=depths.detach()[drawn])
+    if resolve_backend(backend, features.dtype) == "reference":
+        return rasterize_reference(means2d, conics, opacities, features, depths, radii,
+                                   width, height, absgrad)
+    radii = radii.to(torch.int32)
+    return _NativeRasterize.apply(means2d, conics, opacities, features, depths, radii,
+                                  width, height, absgrad)
