@@ -30,111 +30,103 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
     const int tiles = bins.tiles_x * bins.tiles_y;
     const int64_t stride = kFeatures + channels;
     const int threads = omp_get_max_threads();
+    const RowF lanes = lane_offsets();
     std::vector<float> partial(static_cast<size_t>(threads) * n * stride, 0.0f);
 #pragma omp parallel
     {
         float* mine = partial.data() + static_cast<size_t>(omp_get_thread_num()) * n * stride;
-        std::vector<float> behind(channels * kTilePixels), grad_in(channels * kTilePixels);
-        alignas(64) float trans[kTilePixels];
-        alignas(64) float behind_alpha[kTilePixels];
-        alignas(64) float grad_a[kTilePixels];
-        alignas(64) int32_t last[kTilePixels];
-        int32_t row_last[kTile];  // per row, the largest last_entry: later Gaussians skip it
-        alignas(64) float use[kTile], alpha_row[kTile], t_before[kTile], dalpha[kTile];
+        std::vector<RowF> behind(channels * kTile), grad_in(channels * kTile);  // [channel][row]
+        std::vector<RowF> grad_f(channels);
+        RowF trans[kTile], behind_alpha[kTile], grad_a[kTile];
+        RowI last[kTile];
+        int32_t row_last[kTile];  // per row, the largest last entry: later Gaussians skip it
 #pragma omp for schedule(dynamic, 1)
         for (int tile = 0; tile < tiles; ++tile) {
             const int px0 = (tile % bins.tiles_x) * kTile, py0 = (tile / bins.tiles_x) * kTile;
             const int32_t start = bins.offsets[tile], end = bins.offsets[tile + 1];
-            std::fill(behind.begin(), behind.end(), 0.0f);
-            std::fill(row_last, row_last + kTile, start);
-            for (int p = 0; p < kTilePixels; ++p) {
-                const int x = px0 + p % kTile, y = py0 + p / kTile;
-                const bool inside = x < width && y < height;
-                const int64_t pixel = static_cast<int64_t>(y) * width + x;
-                trans[p] = inside ? transmittance[pixel] : 1.0f;
-                last[p] = inside ? last_entry[pixel] : start;
-                row_last[p / kTile] = std::max(row_last[p / kTile], last[p]);
-                grad_a[p] = inside ? grad_alpha[pixel] : 0.0f;
-                behind_alpha[p] = 0.0f;
-                for (int64_t ch = 0; ch < channels; ++ch)
-                    grad_in[ch * kTilePixels + p] = inside ? grad_image[pixel * channels + ch] : 0.0f;
+            std::fill(behind.begin(), behind.end(), row_of(0.0f));
+            for (int row = 0; row < kTile; ++row) {
+                trans[row] = row_of(1.0f);
+                last[row] = row_of(start);
+                grad_a[row] = behind_alpha[row] = row_of(0.0f);
+                for (int64_t ch = 0; ch < channels; ++ch) grad_in[ch * kTile + row] = row_of(0.0f);
+                for (int col = 0; col < kTile; ++col) {
+                    const int x = px0 + col, y = py0 + row;
+                    if (x >= width || y >= height) continue;
+                    const int64_t pixel = static_cast<int64_t>(y) * width + x;
+                    trans[row][col] = transmittance[pixel];
+                    last[row][col] = last_entry[pixel];
+                    grad_a[row][col] = grad_alpha[pixel];
+                    for (int64_t ch = 0; ch < channels; ++ch)
+                        grad_in[ch * kTile + row][col] = grad_image[pixel * channels + ch];
+                }
+                row_last[row] = start;
+                for (int col = 0; col < kTile; ++col) row_last[row] = std::max(row_last[row], last[row][col]);
             }
             for (int32_t k = end - 1; k >= start; --k) {
                 const int32_t g = bins.ids[k];
                 const PixelBox& box = bins.boxes[g];
-                const float mx = means2d[2 * g], my = means2d[2 * g + 1];
                 const float a = conics[3 * g], b = conics[3 * g + 1], c = conics[3 * g + 2];
-                const float opacity = opacities[g];
-                const int col0 = std::max(box.x0 - px0, 0), col1 = std::min(box.x1 - px0, kTile - 1);
+                const float opacity = opacities[g], q_max = bins.q_max[g];
+                const float mx = means2d[2 * g], my = means2d[2 * g + 1];
+                const RowF dx = lanes + (px0 + 0.5f - mx);
+                const RowF qa = a * dx * dx, qb = 2.0f * b * dx;
                 const int row0 = std::max(box.y0 - py0, 0), row1 = std::min(box.y1 - py0, kTile - 1);
                 const float* feature = features + g * channels;
-                float* slot = mine + g * stride;
-                float g_mx = 0, g_my = 0, g_a = 0, g_b = 0, g_c = 0, g_o = 0, abs_x = 0, abs_y = 0;
+                // rows of a Gaussian whose box spills over the tile's sides may miss the tile
+                const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
+                RowF g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, abs_x{}, abs_y{};
+                std::fill(grad_f.begin(), grad_f.end(), row_of(0.0f));
+                bool touched = false;
                 for (int row = row0; row <= row1; ++row) {
                     if (k >= row_last[row]) continue;
                     const float dy = py0 + row + 0.5f - my;
-                    float* t_row = trans + row * kTile;
-                    const int32_t* last_row = last + row * kTile;
-#pragma omp simd
-                    for (int col = 0; col < kTile; ++col) {
-                        const float dx = px0 + col + 0.5f - mx;
-                        const float q = a * dx * dx + 2.0f * b * dx * dy + c * dy * dy;
-                        const float alpha = std::min(kAlphaMax, opacity * fast_exp(-0.5f * q));
-                        const bool in = col >= col0 && col <= col1 && k < last_row[col] &&
-                                        alpha >= kAlphaMin && q >= 0.0f;
-                        use[col] = in ? 1.0f : 0.0f;
-                        alpha_row[col] = in ? alpha : 0.0f;
-                        t_before[col] = in ? t_row[col] / (1.0f - alpha) : t_row[col];
-                        dalpha[col] = 0.0f;
-                    }
+                    if (spills && !row_touches_tile(mx, a, b, c, q_max, dy, px0)) continue;
+                    touched = true;
+                    const RowF q = qa + dy * (qb + c * dy);
+                    const RowF raw = row_min(opacity * row_exp(-0.5f * q), kAlphaMax);
+                    const RowI in = (row_of(k) < last[row]) & (raw >= kAlphaMin) & (q >= 0.0f);
+                    const RowF alpha = select(in, raw, row_of(0.0f));
+                    const RowF t_before = trans[row] / (1.0f - alpha);
+                    const RowF weight = alpha * t_before;
+                    RowF d_colour{};
                     for (int64_t ch = 0; ch < channels; ++ch) {
-                        const float f = feature[ch];
-                        float* behind_row = behind.data() + ch * kTilePixels + row * kTile;
-                        const float* grad_row = grad_in.data() + ch * kTilePixels + row * kTile;
-                        float g_f = 0.0f;
-#pragma omp simd reduction(+ : g_f)
-                        for (int col = 0; col < kTile; ++col) {
-                            const float w = alpha_row[col] * t_before[col];
-                            g_f += w * grad_row[col];
-                            dalpha[col] += use[col] * (f - behind_row[col]) * grad_row[col];
-                            behind_row[col] += alpha_row[col] * (f - behind_row[col]);
-                        }
-                        slot[kFeatures + ch] += g_f;
+                        const RowF grad = grad_in[ch * kTile + row];
+                        RowF& back = behind[ch * kTile + row];
+                        const RowF f = row_of(feature[ch]);
+                        grad_f[ch] += weight * grad;
+                        d_colour += (f - back) * grad;
+                        back += alpha * (f - back);
                     }
-                    float* ba_row = behind_alpha + row * kTile;
-                    const float* ga_row = grad_a + row * kTile;
-#pragma omp simd reduction(+ : g_mx, g_my, g_a, g_b, g_c, g_o, abs_x, abs_y)
-                    for (int col = 0; col < kTile; ++col) {
-                        const float dx = px0 + col + 0.5f - mx;
-                        const float d_alpha = use[col] * t_before[col] *
-                                              (dalpha[col] + (1.0f - ba_row[col]) * ga_row[col]);
-                        ba_row[col] += alpha_row[col] * (1.0f - ba_row[col]);
-                        t_row[col] = t_before[col];
-                        // alpha = o G with G = exp(-q/2), unless clamped at kAlphaMax
-                        const float gauss = alpha_row[col] / opacity;
-                        const bool clamped = opacity * gauss >= kAlphaMax;
-                        const float d_o = clamped ? 0.0f : gauss * d_alpha;
-                        const float d_q = clamped ? 0.0f : -0.5f * alpha_row[col] * d_alpha;
-                        const float d_mx = -d_q * (2.0f * a * dx + 2.0f * b * dy);
-                        const float d_my = -d_q * (2.0f * b * dx + 2.0f * c * dy);
-                        g_o += d_o;
-                        g_a += d_q * dx * dx;
-                        g_b += d_q * 2.0f * dx * dy;
-                        g_c += d_q * dy * dy;
-                        g_mx += d_mx;
-                        g_my += d_my;
-                        abs_x += std::fabs(d_mx);
-                        abs_y += std::fabs(d_my);
-                    }
+                    const RowF d_alpha = t_before * (d_colour + (1.0f - behind_alpha[row]) * grad_a[row]);
+                    behind_alpha[row] += alpha * (1.0f - behind_alpha[row]);
+                    trans[row] = t_before;
+                    // alpha = o G with G = exp(-q/2), unless clamped at kAlphaMax (then no gradient)
+                    const RowI free = in & (alpha < kAlphaMax);
+                    const RowF d_o = select(free, alpha / opacity * d_alpha, row_of(0.0f));
+                    const RowF d_q = select(free, -0.5f * alpha * d_alpha, row_of(0.0f));
+                    const RowF d_mx = -d_q * (2.0f * a * dx + 2.0f * b * dy);
+                    const RowF d_my = -d_q * (2.0f * b * dx + 2.0f * c * dy);
+                    g_o += d_o;
+                    g_a += d_q * dx * dx;
+                    g_b += d_q * 2.0f * dx * dy;
+                    g_c += d_q * dy * dy;
+                    g_mx += d_mx;
+                    g_my += d_my;
+                    abs_x += select(d_mx < 0.0f, -d_mx, d_mx);
+                    abs_y += select(d_my < 0.0f, -d_my, d_my);
                 }
-                slot[kMx] += g_mx;
-                slot[kMy] += g_my;
-                slot[kA] += g_a;
-                slot[kB] += g_b;
-                slot[kC] += g_c;
-                slot[kOpacity] += g_o;
-                slot[kAbsX] += abs_x;
-                slot[kAbsY] += abs_y;
+                if (!touched) continue;
+                float* slot = mine + g * stride;
+                slot[kMx] += lane_sum(g_mx);
+                slot[kMy] += lane_sum(g_my);
+                slot[kA] += lane_sum(g_a);
+                slot[kB] += lane_sum(g_b);
+                slot[kC] += lane_sum(g_c);
+                slot[kOpacity] += lane_sum(g_o);
+                slot[kAbsX] += lane_sum(abs_x);
+                slot[kAbsY] += lane_sum(abs_y);
+                for (int64_t ch = 0; ch < channels; ++ch) slot[kFeatures + ch] += lane_sum(grad_f[ch]);
             }
         }
 #pragma omp for schedule(static)

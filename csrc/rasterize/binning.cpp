@@ -10,9 +10,8 @@ namespace {
 
 // Pixel box where o * exp(-q/2) >= 1/255, i.e. q <= 2 ln(255 o): the ellipse's extents are
 // sqrt(q_max * cov_xx) and sqrt(q_max * cov_yy), with cov = conic^-1.
-PixelBox alpha_box(const float* mean, const float* conic, float opacity, int width, int height) {
+PixelBox alpha_box(const float* mean, const float* conic, float q_max, int width, int height) {
     PixelBox box{0, 0, -1, -1};
-    const float q_max = 2.0f * std::log(opacity / kAlphaMin);
     const float det = conic[0] * conic[2] - conic[1] * conic[1];
     if (!(q_max > 0.0f) || !(det > 0.0f)) return box;
     const float ext_x = std::sqrt(q_max * conic[2] / det);
@@ -65,11 +64,13 @@ TileBins bin_gaussians(const float* means2d, const float* conics, const float* o
     bins.tiles_y = (height + kTile - 1) / kTile;
     const int tiles = bins.tiles_x * bins.tiles_y;
     bins.boxes.assign(n, PixelBox{0, 0, -1, -1});
+    bins.q_max.assign(n, 0.0f);
     std::vector<int32_t> drawn;
     drawn.reserve(n);
     for (int64_t i = 0; i < n; ++i) {
         if (radii[i] <= 0) continue;
-        bins.boxes[i] = alpha_box(means2d + 2 * i, conics + 3 * i, opacities[i], width, height);
+        bins.q_max[i] = 2.0f * std::log(opacities[i] / kAlphaMin);
+        bins.boxes[i] = alpha_box(means2d + 2 * i, conics + 3 * i, bins.q_max[i], width, height);
         if (bins.boxes[i].x1 >= bins.boxes[i].x0) drawn.push_back(static_cast<int32_t>(i));
     }
     const std::vector<int32_t> order = sort_by_depth(drawn, depths);

@@ -7,6 +7,10 @@
 #include <cstring>
 #include <vector>
 
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
+
 namespace surgsplat {
 
 constexpr int kTile = 16;                    // tile edge in pixels
@@ -15,23 +19,64 @@ constexpr float kAlphaMax = 0.99f;           // alpha = min(0.99, o * exp(-q / 2
 constexpr float kAlphaMin = 1.0f / 255.0f;   // contributions below this are skipped
 constexpr float kTransmittanceMin = 1e-4f;   // compositing stops below this transmittance
 
-// exp(x) for x <= 0 without libm, so that loops over pixels vectorise: x = n ln2 + r with
-// |r| <= ln2 / 2, exp(r) by its degree-6 Taylor polynomial (relative error < 2e-7).
-inline float fast_exp(float x) {
-    x = x < -87.0f ? -87.0f : x;
-    const float n = std::nearbyint(x * 1.44269504088896341f);
-    const float r = x - n * 0.693145751953125f - n * 1.42860682030941723e-06f;
-    float p = 1.0f / 720.0f;
+// One tile row: 16 float lanes. GCC/Clang vector extensions compile this to one AVX-512
+// register, two AVX2 registers or four SSE registers, whatever the machine has.
+typedef float RowF __attribute__((vector_size(4 * kTile)));
+typedef int32_t RowI __attribute__((vector_size(4 * kTile)));
+
+inline RowF row_of(float value) { return RowF{} + value; }
+inline RowI row_of(int32_t value) { return RowI{} + value; }
+
+// The lane offsets 0, 1, ..., 15 of a tile row.
+inline RowF lane_offsets() {
+    RowF lanes;
+    for (int i = 0; i < kTile; ++i) lanes[i] = static_cast<float>(i);
+    return lanes;
+}
+
+// Bitwise select: mask lanes are all ones or all zeros.
+inline RowF select(RowI mask, RowF yes, RowF no) {
+    return reinterpret_cast<RowF>((mask & reinterpret_cast<RowI>(yes)) |
+                                  (~mask & reinterpret_cast<RowI>(no)));
+}
+
+inline RowF row_min(RowF x, float bound) { return select(x > bound, row_of(bound), x); }
+
+#if defined(__AVX512F__)
+inline float lane_sum(RowF x) { return _mm512_reduce_add_ps(reinterpret_cast<__m512>(x)); }
+inline bool any_lane(RowI mask) {
+    const __m512i m = reinterpret_cast<__m512i>(mask);
+    return _mm512_test_epi32_mask(m, m) != 0;
+}
+#else
+inline float lane_sum(RowF x) {
+    float sum = 0.0f;
+    for (int i = 0; i < kTile; ++i) sum += x[i];
+    return sum;
+}
+inline bool any_lane(RowI mask) {
+    int32_t any = 0;
+    for (int i = 0; i < kTile; ++i) any |= mask[i];
+    return any != 0;
+}
+#endif
+
+// exp(x) for x <= 0, lane-wise: x = n ln2 + r with |r| <= ln2 / 2, exp(r) by its degree-6
+// Taylor polynomial (relative error < 2e-7), 2^n built in the exponent bits.
+inline RowF row_exp(RowF x) {
+    x = select(x < -87.0f, row_of(-87.0f), x);
+    const RowF round_magic = row_of(12582912.0f);  // 1.5 * 2^23: adding it rounds to integer
+    const RowF n = (x * 1.44269504088896341f + round_magic) - round_magic;
+    const RowF r = x - n * 0.693145751953125f - n * 1.42860682030941723e-06f;
+    RowF p = row_of(1.0f / 720.0f);
     p = p * r + 1.0f / 120.0f;
     p = p * r + 1.0f / 24.0f;
     p = p * r + 1.0f / 6.0f;
     p = p * r + 0.5f;
     p = p * r + 1.0f;
     p = p * r + 1.0f;
-    const int32_t bits = (static_cast<int32_t>(n) + 127) << 23;
-    float scale;
-    std::memcpy(&scale, &bits, sizeof(scale));
-    return p * scale;
+    const RowI exponent = (__builtin_convertvector(n, RowI) + 127) << 23;
+    return p * reinterpret_cast<RowF>(exponent);
 }
 
 // Screen-space Gaussian as the kernels read it.
@@ -46,12 +91,34 @@ struct PixelBox {
     int32_t x0, y0, x1, y1;
 };
 
+// The columns [x_lo, x_hi] (pixel coordinates) where row offset dy of a Gaussian can reach
+// alpha >= kAlphaMin: {q(dx, dy) <= q_max} is an interval in dx. Returns false when empty.
+inline bool row_reach(float mx, float a, float b, float c, float q_max, float dy,
+                      float& x_lo, float& x_hi) {
+    const float disc = dy * dy * (b * b - a * c) + a * q_max;
+    if (!(disc > 0.0f)) return false;
+    const float centre = mx - b * dy / a, half = std::sqrt(disc) / a;
+    x_lo = centre - half;
+    x_hi = centre + half;
+    return true;
+}
+
+// Whether row offset dy of a Gaussian reaches any pixel centre of the tile starting at px0.
+inline bool row_touches_tile(float mx, float a, float b, float c, float q_max, float dy,
+                             int px0) {
+    float x_lo, x_hi;
+    constexpr float kMargin = 0.01f;  // pixels, against rounding
+    return row_reach(mx, a, b, c, q_max, dy, x_lo, x_hi) &&
+           x_hi + kMargin >= px0 + 0.5f && x_lo - kMargin <= px0 + kTile - 0.5f;
+}
+
 // Tile lists: Gaussians overlapping tile t are ids[offsets[t] .. offsets[t+1]), nearest first.
 struct TileBins {
     int tiles_x = 0, tiles_y = 0;
     std::vector<int32_t> offsets;   // [tiles + 1]
     std::vector<int32_t> ids;       // [total overlaps]
     std::vector<PixelBox> boxes;    // [N], x1 < x0 when the Gaussian is not drawn
+    std::vector<float> q_max;       // [N] alpha >= kAlphaMin where q <= q_max = 2 ln(o / kAlphaMin)
 };
 
 TileBins bin_gaussians(const float* means2d, const float* conics, const float* opacities,

@@ -1,5 +1,5 @@
-// Forward compositing: parallel over tiles; inside a tile the loop runs Gaussian by Gaussian
-// (front to back) over whole 16-pixel rows, so the per-pixel work vectorises.
+// Forward compositing: parallel over tiles; inside a tile, Gaussians front to back, each over
+// the tile rows its alpha box touches, one 16-lane vector per row.
 #include <algorithm>
 
 #include "common.h"
@@ -11,79 +11,72 @@ void rasterize_forward(const float* means2d, const float* conics, const float* o
                        int width, int height, float* image, float* transmittance,
                        int32_t* last_entry) {
     const int tiles = bins.tiles_x * bins.tiles_y;
+    const RowF lanes = lane_offsets();
 #pragma omp parallel
     {
-        std::vector<float> accum(channels * kTilePixels);
-        alignas(64) float trans[kTilePixels];
-        alignas(64) float live[kTilePixels];
-        alignas(64) int32_t last[kTilePixels];
-        alignas(64) float weight[kTile];
-        int row_live[kTile];  // live pixels per row: rows with none are skipped
+        std::vector<RowF> accum(channels * kTile);  // [channel][row]
+        RowF trans[kTile];
+        RowI live[kTile];   // all ones while the pixel still composites
+        RowI last[kTile];   // one past the list entry of the last contributor
+        bool row_live[kTile];
 #pragma omp for schedule(dynamic, 1)
         for (int tile = 0; tile < tiles; ++tile) {
             const int px0 = (tile % bins.tiles_x) * kTile, py0 = (tile / bins.tiles_x) * kTile;
             const int32_t start = bins.offsets[tile], end = bins.offsets[tile + 1];
-            std::fill(accum.begin(), accum.end(), 0.0f);
-            int remaining = 0;
-            std::fill(row_live, row_live + kTile, 0);
-            for (int p = 0; p < kTilePixels; ++p) {
-                const bool inside = px0 + p % kTile < width && py0 + p / kTile < height;
-                trans[p] = 1.0f;
-                live[p] = inside ? 1.0f : 0.0f;
-                last[p] = start;
-                remaining += inside;
-                row_live[p / kTile] += inside;
+            std::fill(accum.begin(), accum.end(), row_of(0.0f));
+            const RowI in_image = (lanes + static_cast<float>(px0)) < static_cast<float>(width);
+            for (int row = 0; row < kTile; ++row) {
+                trans[row] = row_of(1.0f);
+                live[row] = py0 + row < height ? in_image : row_of(0);
+                last[row] = row_of(start);
+                row_live[row] = any_lane(live[row]);
             }
-            for (int32_t k = start; k < end && remaining > 0; ++k) {
+            for (int32_t k = start; k < end; ++k) {
                 const int32_t g = bins.ids[k];
                 const PixelBox& box = bins.boxes[g];
-                const float mx = means2d[2 * g], my = means2d[2 * g + 1];
                 const float a = conics[3 * g], b = conics[3 * g + 1], c = conics[3 * g + 2];
-                const float opacity = opacities[g];
-                const int col0 = std::max(box.x0 - px0, 0), col1 = std::min(box.x1 - px0, kTile - 1);
+                const float opacity = opacities[g], q_max = bins.q_max[g];
+                const float mx = means2d[2 * g], my = means2d[2 * g + 1];
+                // q = a dx^2 + 2 b dx dy + c dy^2 = qa + dy (qb + c dy) per lane
+                const RowF dx = lanes + (px0 + 0.5f - mx);
+                const RowF qa = a * dx * dx, qb = 2.0f * b * dx;
                 const int row0 = std::max(box.y0 - py0, 0), row1 = std::min(box.y1 - py0, kTile - 1);
                 const float* feature = features + g * channels;
+                // rows of a Gaussian whose box spills over the tile's sides may miss the tile
+                const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
+                bool any_live = false;
                 for (int row = row0; row <= row1; ++row) {
-                    if (row_live[row] == 0) continue;
+                    if (!row_live[row]) continue;
                     const float dy = py0 + row + 0.5f - my;
-                    float* t_row = trans + row * kTile;
-                    float* live_row = live + row * kTile;
-                    int32_t* last_row = last + row * kTile;
-                    int stopped = 0;
-#pragma omp simd reduction(+ : stopped)
-                    for (int col = 0; col < kTile; ++col) {
-                        const float dx = px0 + col + 0.5f - mx;
-                        const float q = a * dx * dx + 2.0f * b * dx * dy + c * dy * dy;
-                        const float alpha = std::min(kAlphaMax, opacity * fast_exp(-0.5f * q));
-                        const bool in = col >= col0 && col <= col1 && live_row[col] > 0.0f &&
-                                        alpha >= kAlphaMin && q >= 0.0f;
-                        const float t_next = t_row[col] * (1.0f - alpha);
-                        const bool stop = in && t_next < kTransmittanceMin;
-                        const bool use = in && !stop;
-                        weight[col] = use ? alpha * t_row[col] : 0.0f;
-                        t_row[col] = use ? t_next : t_row[col];
-                        last_row[col] = use ? k + 1 : last_row[col];
-                        live_row[col] = stop ? 0.0f : live_row[col];
-                        stopped += stop ? 1 : 0;
+                    if (spills && !row_touches_tile(mx, a, b, c, q_max, dy, px0)) continue;
+                    const RowF q = qa + dy * (qb + c * dy);
+                    const RowF alpha = row_min(opacity * row_exp(-0.5f * q), kAlphaMax);
+                    const RowI in = live[row] & (alpha >= kAlphaMin) & (q >= 0.0f);
+                    const RowF t_next = trans[row] * (1.0f - alpha);
+                    const RowI stop = in & (t_next < kTransmittanceMin);
+                    const RowI use = in & ~stop;
+                    const RowF weight = select(use, alpha * trans[row], row_of(0.0f));
+                    trans[row] = select(use, t_next, trans[row]);
+                    last[row] = (use & row_of(k + 1)) | (~use & last[row]);
+                    if (any_lane(stop)) {
+                        live[row] &= ~stop;
+                        row_live[row] = any_lane(live[row]);
                     }
-                    for (int64_t ch = 0; ch < channels; ++ch) {
-                        const float f = feature[ch];
-                        float* acc_row = accum.data() + ch * kTilePixels + row * kTile;
-#pragma omp simd
-                        for (int col = 0; col < kTile; ++col) acc_row[col] += f * weight[col];
-                    }
-                    remaining -= stopped;
-                    row_live[row] -= stopped;
+                    any_live = true;
+                    for (int64_t ch = 0; ch < channels; ++ch)
+                        accum[ch * kTile + row] += feature[ch] * weight;
                 }
+                if (!any_live && std::none_of(row_live, row_live + kTile, [](bool r) { return r; }))
+                    break;
             }
-            for (int p = 0; p < kTilePixels; ++p) {
-                const int x = px0 + p % kTile, y = py0 + p / kTile;
-                if (x >= width || y >= height) continue;
-                const int64_t pixel = static_cast<int64_t>(y) * width + x;
-                for (int64_t ch = 0; ch < channels; ++ch)
-                    image[pixel * channels + ch] = accum[ch * kTilePixels + p];
-                transmittance[pixel] = trans[p];
-                last_entry[pixel] = last[p];
+            for (int row = 0; row < kTile && py0 + row < height; ++row) {
+                for (int col = 0; col < kTile && px0 + col < width; ++col) {
+                    const int64_t pixel = static_cast<int64_t>(py0 + row) * width + px0 + col;
+                    for (int64_t ch = 0; ch < channels; ++ch)
+                        image[pixel * channels + ch] = accum[ch * kTile + row][col];
+                    transmittance[pixel] = trans[row][col];
+                    last_entry[pixel] = last[row][col];
+                }
             }
         }
     }

@@ -1,0 +1,151 @@
+"""The rasterizer contract: reference gradcheck, native == reference (forward, gradients,
+absolute screen gradient), edge cases, and input validation.
+
+Tolerances: float32 forward max abs difference 1e-5; gradients relative L2 error 1e-4."""
+
+import pytest
+import torch
+
+from surgsplat.render import native as native_loader
+from surgsplat.render.rasterize import rasterize, resolve_backend
+from surgsplat.render.reference import rasterize_reference
+
+needs_native = pytest.mark.skipif(native_loader.native_module() is None,
+                                  reason="native module not built")
+DIFFERENTIABLE = ("means2d", "conics", "opacities", "features")
+
+
+def run(scene, backend, grad_seed=1):
+    """Forward and backward with a fixed random upstream gradient."""
+    leaves = {k: scene[k].detach().clone().requires_grad_() for k in DIFFERENTIABLE}
+    absgrad = torch.zeros(scene["means2d"].shape[0], dtype=scene["means2d"].dtype)
+    image, alpha = rasterize(leaves["means2d"], leaves["conics"], leaves["opacities"],
+                             leaves["features"], scene["depths"], scene["radii"],
+                             scene["width"], scene["height"], absgrad=absgrad, backend=backend)
+    generator = torch.Generator().manual_seed(grad_seed)
+    grad_image = torch.randn(image.shape, generator=generator, dtype=image.dtype)
+    grad_alpha = torch.randn(alpha.shape, generator=generator, dtype=alpha.dtype)
+    if image.requires_grad:
+        ((image * grad_image).sum() + (alpha * grad_alpha).sum()).backward()
+    grads = {k: v.grad if v.grad is not None else torch.zeros_like(v) for k, v in leaves.items()}
+    return image.detach(), alpha.detach(), grads, absgrad
+
+
+def relative_error(a, b):
+    return float((a - b).norm() / b.norm().clamp_min(1e-12))
+
+
+def test_reference_gradcheck(scene_factory):
+    scene = scene_factory(6, 9, 7, channels=2, dtype=torch.float64, scale=0.3)
+    inputs = tuple(scene[k].clone().requires_grad_() for k in DIFFERENTIABLE)
+
+    def composite(m, c, o, f):
+        return rasterize_reference(m, c, o, f, scene["depths"], scene["radii"], 9, 7)
+
+    assert torch.autograd.gradcheck(composite, inputs, eps=1e-6, atol=1e-6)
+
+
+@needs_native
+@pytest.mark.parametrize("num,width,height,channels", [
+    (300, 37, 29, 3), (200, 16, 16, 1), (150, 33, 20, 32), (400, 48, 40, 8)])
+def test_native_matches_reference(scene_factory, num, width, height, channels):
+    scene = scene_factory(num, width, height, channels=channels, seed=num)
+    native = run(scene, "native")
+    reference = run(scene, "reference")
+    assert (native[0] - reference[0]).abs().max() < 1e-5
+    assert (native[1] - reference[1]).abs().max() < 1e-5
+    for name in DIFFERENTIABLE:
+        assert relative_error(native[2][name], reference[2][name]) < 1e-4, name
+    assert relative_error(native[3], reference[3]) < 1e-4
+
+
+@needs_native
+def test_opaque_layers_stop_early_in_both(scene_factory):
+    scene = scene_factory(500, 24, 24, seed=7, scale=0.4)
+    scene["opacities"] = torch.full_like(scene["opacities"], 0.98)
+    native, reference = run(scene, "native"), run(scene, "reference")
+    assert (native[0] - reference[0]).abs().max() < 1e-5
+    assert (native[1] > 0.999).float().mean() > 0.5  # most pixels reached the stop
+    for name in DIFFERENTIABLE:
+        assert relative_error(native[2][name], reference[2][name]) < 1e-4, name
+
+
+@pytest.mark.parametrize("backend", ["reference", pytest.param("native", marks=needs_native)])
+class TestEdgeCases:
+    def test_empty_scene(self, backend, scene_factory):
+        scene = scene_factory(0, 20, 10)
+        image, alpha, grads, _ = run(scene, backend)
+        assert image.shape == (10, 20, 3) and not image.any() and not alpha.any()
+
+    def test_everything_culled(self, backend, scene_factory):
+        scene = scene_factory(50, 20, 10)
+        scene["radii"] = torch.zeros_like(scene["radii"])
+        image, alpha, grads, absgrad = run(scene, backend)
+        assert not image.any() and not alpha.any()
+        assert not any(g.any() for g in grads.values()) and not absgrad.any()
+
+    def test_one_gaussian_covering_the_image(self, backend):
+        scene = {"means2d": torch.tensor([[10.0, 8.0]]), "conics": torch.tensor([[1e-7, 0, 1e-7]]),
+                 "opacities": torch.tensor([0.5]), "features": torch.tensor([[0.2, 0.4, 0.6]]),
+                 "depths": torch.tensor([1.0]), "radii": torch.tensor([1000], dtype=torch.int32),
+                 "width": 21, "height": 17}
+        image, alpha, grads, _ = run(scene, backend)
+        assert torch.allclose(alpha, torch.full_like(alpha, 0.5), atol=1e-3)
+        assert torch.allclose(image[..., 2], torch.full_like(alpha, 0.3), atol=1e-3)
+
+    def test_sub_pixel_and_zero_opacity(self, backend, scene_factory):
+        scene = scene_factory(40, 30, 20)
+        scene["conics"] = torch.tensor([[25.0, 0.0, 25.0]]).repeat(40, 1)  # sigma 0.2 px
+        scene["opacities"][::2] = 0.0
+        image, alpha, grads, _ = run(scene, backend)
+        assert torch.isfinite(image).all() and alpha.max() <= 0.99 + 1e-6
+        assert not grads["features"][::2].any()  # zero opacity: no contribution, no gradient
+
+    @pytest.mark.parametrize("size", [(1, 1), (17, 33), (5, 40)])
+    def test_odd_image_sizes(self, backend, scene_factory, size):
+        scene = scene_factory(30, *size)
+        image, alpha, _, _ = run(scene, backend)
+        assert image.shape == (size[1], size[0], 3) and alpha.shape == (size[1], size[0])
+
+
+@needs_native
+@pytest.mark.parametrize("size", [(1, 1), (17, 33), (5, 40)])
+def test_odd_image_sizes_agree(scene_factory, size):
+    scene = scene_factory(60, *size, seed=5)
+    native, reference = run(scene, "native"), run(scene, "reference")
+    assert (native[0] - reference[0]).abs().max() < 1e-5
+
+
+@pytest.mark.parametrize("name", ["means2d", "conics", "opacities", "features"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_input_is_rejected(scene_factory, name, bad):
+    scene = scene_factory(10, 16, 16)
+    drawn = int(torch.nonzero(scene["radii"] > 0)[0])
+    scene[name] = scene[name].clone()
+    scene[name][drawn] = bad
+    with pytest.raises(ValueError, match=f"{name} has 1 non-finite|{name} has [0-9]+ non-finite"):
+        run(scene, "auto")
+
+
+def test_feature_shape_is_checked(scene_factory):
+    scene = scene_factory(10, 16, 16)
+    scene["features"] = scene["features"][:5]
+    with pytest.raises(ValueError, match="features must be"):
+        run(scene, "auto")
+
+
+def test_missing_native_module_falls_back_with_one_warning(monkeypatch):
+    import sys
+
+    import surgsplat.render
+    native_loader.native_module.cache_clear()
+    monkeypatch.setitem(sys.modules, "surgsplat.render._native", None)
+    monkeypatch.delattr(surgsplat.render, "_native", raising=False)
+    try:
+        with pytest.warns(RuntimeWarning, match="PyTorch reference"):
+            assert resolve_backend("auto", torch.float32) == "reference"
+        with pytest.raises(RuntimeError, match="not built"):
+            resolve_backend("native", torch.float32)
+    finally:
+        monkeypatch.undo()
+        native_loader.native_module.cache_clear()
