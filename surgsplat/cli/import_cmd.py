@@ -1,0 +1,130 @@
+"""`surgsplat import SRC --out DIR`: video or frames (+ masks, + right camera) to a scene folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from surgsplat.cli.info import print_summary_table
+from surgsplat.cli.progress import progress_bar
+from surgsplat.data.importer import ImportConfig, import_scene
+from surgsplat.data.layout import META_FILE, SceneMeta
+from surgsplat.data.stereo import SGBM_MODES, StereoConfig
+from surgsplat.data.tool_masks import MASK_MATCHES
+from surgsplat.errors import SurgsplatError
+
+
+def parse_labels(text: str | None) -> tuple[int, ...] | None:
+    """"31,32" -> (31, 32)."""
+    if text is None:
+        return None
+    try:
+        return tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise SurgsplatError(f"--tool-labels expects comma-separated integers, got "
+                             f"{text!r}") from None
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """"640x360" -> (640, 360) as (width, height)."""
+    if text is None:
+        return None
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise SurgsplatError(f"--resize expects WIDTHxHEIGHT, e.g. 640x360, got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
+def import_command(
+    source: Annotated[Path, typer.Argument(help="Video file (mp4, avi, ...) or folder of frames "
+                                                "(sorted naturally: frame_2 before frame_10).")],
+    out: Annotated[Path, typer.Option(
+        help="New scene folder to write (must not exist or be empty).")],
+    pattern: Annotated[str | None, typer.Option(
+        help="Glob picking the frame files in the source (and --right) folder, e.g. "
+             "'*_endo.png'. Default: all image files.")] = None,
+    masks: Annotated[Path | None, typer.Option(
+        help="Folder of tool label images, one per frame.")] = None,
+    mask_pattern: Annotated[str | None, typer.Option(
+        help="Glob picking the mask files in --masks, e.g. '*_endo_watershed_mask.png'.")] = None,
+    tool_labels: Annotated[str | None, typer.Option(
+        help="Comma-separated class IDs that are tools in class-ID masks, e.g. 31,32 "
+             "(CholecSeg8k). Without it masks are binary: nonzero = tool.")] = None,
+    mask_match: Annotated[str, typer.Option(
+        help=f"Pair masks with frames by: {', '.join(MASK_MATCHES)} (auto = the numbers in the "
+             "file names for a folder, sorted order for a video).")] = "auto",
+    allow_missing_masks: Annotated[bool, typer.Option(
+        help="Drop frames that have no mask (default: stop with an error).")] = False,
+    fov_mask: Annotated[bool, typer.Option(
+        help="Find the circular field of view (black border) and mask what lies outside "
+             "it.")] = True,
+    right: Annotated[Path | None, typer.Option(
+        help="Right-camera video or folder of a stereo pair. Both cameras must be RECTIFIED "
+             "(corresponding points on the same row); depth = focal x baseline / "
+             "disparity.")] = None,
+    focal: Annotated[float | None, typer.Option(
+        help="Focal length in pixels of the source frames. Default: guessed from --hfov.")] = None,
+    hfov: Annotated[float, typer.Option(
+        help="Horizontal field of view (degrees) assumed when --focal is not given.")] = 70.0,
+    baseline: Annotated[float | None, typer.Option(
+        help="Stereo baseline in --depth-unit (needed with --right unless "
+             "--disparity-only).")] = None,
+    depth_unit: Annotated[str, typer.Option(help="Unit of --baseline and of the depth maps.")] = "mm",
+    disparity_only: Annotated[bool, typer.Option(
+        help="With --right: write disparity (px) to disparity/ instead of depth.")] = False,
+    num_disparities: Annotated[int, typer.Option(
+        help="Stereo search range in pixels (multiple of 16).")] = StereoConfig.num_disparities,
+    stereo_mode: Annotated[str, typer.Option(
+        help=f"SGBM mode: {', '.join(SGBM_MODES)}.")] = StereoConfig.mode,
+    start: Annotated[int, typer.Option(help="First source frame (0-based).")] = 0,
+    end: Annotated[int | None, typer.Option(help="Stop before this source frame.")] = None,
+    stride: Annotated[int, typer.Option(help="Keep every n-th frame.")] = 1,
+    resize: Annotated[str | None, typer.Option(help="Output size WIDTHxHEIGHT, same aspect "
+                                                    "ratio, e.g. 640x360.")] = None,
+    scale: Annotated[float | None, typer.Option(help="Output size as a factor, e.g. 0.5.")] = None,
+) -> None:
+    """Import endoscopic video or frames as an EndoNeRF-layout scene folder."""
+    config = ImportConfig(
+        pattern=pattern, masks=masks, mask_pattern=mask_pattern,
+        tool_labels=parse_labels(tool_labels), mask_match=mask_match,
+        allow_missing_masks=allow_missing_masks, fov_mask=fov_mask, right=right,
+        baseline=baseline, disparity_only=disparity_only, depth_unit=depth_unit,
+        stereo=StereoConfig(num_disparities=num_disparities, mode=stereo_mode), focal=focal,
+        assumed_hfov_deg=hfov, start=start, end=end, stride=stride, resize=parse_size(resize),
+        scale=scale)
+    with progress_bar() as bar:
+        tasks: dict[str, int] = {}
+
+        def report(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done)
+
+        scene_dir = import_scene(source, out, config, progress=report)
+    print_import_table(scene_dir)
+    print_summary_table(scene_dir)
+
+
+def print_import_table(scene_dir: Path) -> None:
+    """What the import did, from the scene's scene.json."""
+    extra = SceneMeta.read(scene_dir / META_FILE).extra
+    table = Table(title="import", show_header=False)
+    table.add_row("source", f"{extra['source_frame_count']} frames, "
+                            f"{extra['source_size_wh'][0]} x {extra['source_size_wh'][1]} px")
+    table.add_row("written", f"{len(extra['source_frames'])} frames "
+                             f"({extra['source_frames'][0]} .. {extra['source_frames'][-1]}), "
+                             f"{len(extra['dropped_without_mask'])} dropped without a mask")
+    table.add_row("focal", f"{extra['focal_px']:.2f} px; {extra['focal_source']}")
+    fov = extra["fov_mask"]
+    table.add_row("field of view", fov if isinstance(fov, str) else
+                  f"{fov['kind']}, {100 * fov['inside_share']:.1f}% of pixels inside")
+    if "masks" in extra:
+        table.add_row("tool labels", str(extra["masks"]["tool_labels"]))
+    if "stereo" in extra:
+        table.add_row("stereo", f"baseline {extra['stereo']['baseline']} "
+                                f"{extra['stereo']['unit']} -> {extra['stereo']['output']}")
+    Console().print(table)

@@ -1,0 +1,130 @@
+"""Frames of a video file or of a folder of images, read in order.
+
+A folder's files are sorted naturally (frame_2 before frame_10); a name pattern picks one kind
+of file from a folder holding several (e.g. "*_endo.png" beside "*_endo_mask.png"). Videos are
+decoded with OpenCV (FFmpeg backend: mp4, avi, mov, mkv, ...).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator, Sequence
+from fnmatch import fnmatchcase
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from surgsplat.data.layout import IMAGE_SUFFIXES
+from surgsplat.data.scene import read_image
+from surgsplat.errors import DataError
+
+_DIGITS = re.compile(r"(\d+)")
+
+
+def natural_key(path: Path) -> tuple:
+    """Sort key of a file name with its digit runs compared as numbers: frame_2 < frame_10."""
+    parts = _DIGITS.split(path.name)
+    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part.lower()) for part in parts)
+
+
+def name_numbers(path: Path) -> tuple[int, ...]:
+    """The numbers in a file's stem, in order: frame_561_endo_mask.png -> (561,)."""
+    return tuple(int(run) for run in _DIGITS.findall(path.stem))
+
+
+def list_frame_files(folder: Path, pattern: str | None, what: str = "frame") -> list[Path]:
+    """Files of `folder` matching the glob `pattern` (default: any image file), sorted naturally."""
+    if not folder.is_dir():
+        raise DataError(folder, f"is not a folder of {what} images")
+    if pattern is None:
+        files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
+        wanted = f"image files ({', '.join(IMAGE_SUFFIXES)})"
+    else:
+        files = [p for p in folder.iterdir() if p.is_file() and fnmatchcase(p.name, pattern)]
+        wanted = f"files matching {pattern!r}"
+    if not files:
+        raise DataError(folder, f"holds no {what} {wanted}")
+    return sorted(files, key=natural_key)
+
+
+class FrameSource:
+    """An ordered sequence of uint8 RGB frames [H, W, 3] from a video file or an image folder."""
+
+    def __init__(self, path: str | Path, pattern: str | None = None):
+        self.path = Path(path)
+        self.files: list[Path] | None = None  # the image files of a folder; None for a video
+        if self.path.is_dir():
+            self.files = list_frame_files(self.path, pattern)
+            self.count = len(self.files)
+        elif self.path.is_file():
+            if self.path.suffix.lower() in IMAGE_SUFFIXES:
+                raise DataError(self.path, "is a single image: expected a video file or a folder "
+                                           "of frames")
+            self.count = self._video_frame_count()
+        else:
+            raise DataError(self.path, "does not exist: expected a video file or a folder of "
+                                       "frames")
+
+    @property
+    def is_video(self) -> bool:
+        return self.files is None
+
+    def frame_path(self, index: int) -> Path:
+        """The file holding frame `index` (the video itself for a video), for messages."""
+        return self.path if self.files is None else self.files[index]
+
+    def frame_label(self, index: int) -> str:
+        """A short name of frame `index`: its file name, or "frame <index>" of a video."""
+        return f"frame {index}" if self.files is None else self.files[index].name
+
+    def read(self, indices: Sequence[int]) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield (index, uint8 RGB frame [H, W, 3]) for the ascending frame `indices`."""
+        if any(b <= a for a, b in zip(indices, indices[1:])):
+            raise ValueError("frame indices must be strictly increasing")
+        if self.files is not None:
+            for index in indices:
+                yield index, read_image(self.files[index])
+            return
+        capture = self._open()
+        try:
+            position = 0
+            for index in indices:
+                while position < index:
+                    self._grab(capture, position)
+                    position += 1
+                self._grab(capture, position)
+                ok, bgr = capture.retrieve()
+                if not ok:
+                    raise DataError(self.path, f"cannot decode frame {position}")
+                position += 1
+                yield index, np.ascontiguousarray(bgr[..., ::-1])
+        finally:
+            capture.release()
+
+    def _open(self) -> cv2.VideoCapture:
+        capture = cv2.VideoCapture(str(self.path))
+        if not capture.isOpened():
+            capture.release()
+            raise DataError(self.path, "cannot be opened as a video (unknown format or corrupt)")
+        return capture
+
+    def _grab(self, capture: cv2.VideoCapture, position: int) -> None:
+        if not capture.grab():
+            raise DataError(self.path, f"ended after {position} frames although its header "
+                                       f"says {self.count}; import fewer frames with --end "
+                                       f"{position}")
+
+    def _video_frame_count(self) -> int:
+        capture = self._open()
+        try:
+            count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+            if count <= 0:  # no usable header: count by decoding
+                count = 0
+                while capture.grab():
+                    count += 1
+        finally:
+            capture.release()
+        if count == 0:
+            raise DataError(self.path, "holds no video frames")
+        return count

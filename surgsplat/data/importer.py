@@ -1,0 +1,384 @@
+"""Import endoscopic video (or a folder of frames) as an EndoNeRF-layout scene folder.
+
+What is written (see `surgsplat.data.layout`): images/ (RGB PNG), masks/ (255 = tool or outside
+the circular field of view) when masks are given or a dark border is found, depth/ (16-bit PNG,
+depth in the baseline's unit) when a right camera is given, poses_bounds.npy (one static
+camera) and scene.json (the source, the frame selection, how the focal length was obtained,
+the field of view and the stereo settings, under `extra`).
+
+Frames come in this order: frame range and stride on the source's frames, then frames without
+a mask are dropped (only if allowed), then every frame is resized. Stereo runs on the resized,
+rectified pair; the focal length is scaled with the image width.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
+from surgsplat.data.frames_source import FrameSource, list_frame_files
+from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem
+from surgsplat.data.stereo import StereoConfig, disparity_to_depth, stereo_disparity
+from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
+from surgsplat.errors import DataError, SurgsplatError
+
+DISPARITY_DIR = "disparity"
+"""Folder of the disparity maps written with --disparity-only: 16-bit PNG holding px x
+DISPARITY_STEPS, 0 = invalid."""
+DISPARITY_STEPS = 256
+"""Stored integer steps per pixel of disparity (the KITTI convention)."""
+MIN_DEPTH_DISPARITY = 1.0
+"""Disparities below this (px) are too far to give a usable depth and are stored as 0 (unknown);
+the deepest stored depth is therefore focal x baseline."""
+FOV_SAMPLE_FRAMES = 100
+"""The field of view is estimated on at most this many of the selected frames, evenly spread."""
+
+Progress = Callable[[str, int, int], None]
+"""Called as progress(stage, done, total) while importing."""
+
+
+@dataclass
+class ImportConfig:
+    """Options of `surgsplat import`."""
+
+    pattern: str | None = None
+    """Glob picking the frame files of a source (and right) folder; None = all image files."""
+    masks: Path | None = None
+    """Folder of tool label images, one per frame; None = no tool masks."""
+    mask_pattern: str | None = None
+    """Glob picking the mask files in `masks`; None = all images."""
+    tool_labels: tuple[int, ...] | None = None
+    """Class IDs that are tools in class-ID masks; None = binary masks (nonzero = tool)."""
+    mask_match: str = "auto"
+    """Pairing of masks with frames: one of tool_masks.MASK_MATCHES (auto: number for folders,
+    order for videos)."""
+    allow_missing_masks: bool = False
+    """Drop frames that have no mask instead of stopping with an error."""
+    fov_mask: bool = True
+    """Find the circular field of view and mark pixels outside it as not tissue (255 in masks/)."""
+    fov: FovConfig = field(default_factory=FovConfig)
+    """How the field of view is found."""
+    right: Path | None = None
+    """Right-camera video or folder of the rectified stereo pair; None = monocular."""
+    baseline: float | None = None
+    """Stereo baseline in the scene's depth unit (e.g. mm); needed for depth from stereo."""
+    disparity_only: bool = False
+    """Write disparity (px) to disparity/ instead of depth to depth/."""
+    depth_unit: str = "mm"
+    """Unit of `baseline`, and so of the depth maps."""
+    stereo: StereoConfig = field(default_factory=StereoConfig)
+    """Stereo matcher parameters."""
+    focal: float | None = None
+    """Focal length in pixels of the source frames; None = guessed from `assumed_hfov_deg`."""
+    assumed_hfov_deg: float = 70.0
+    """Horizontal field of view (degrees) assumed when `focal` is not given."""
+    start: int = 0
+    """First source frame to import (0-based)."""
+    end: int | None = None
+    """Source frame at which to stop (exclusive); None = the last frame."""
+    stride: int = 1
+    """Import every stride-th frame from `start`."""
+    resize: tuple[int, int] | None = None
+    """Output size (width, height); must keep the aspect ratio within 1 %."""
+    scale: float | None = None
+    """Output size as a factor of the source size (instead of `resize`)."""
+
+    def validate(self) -> None:
+        """Raise SurgsplatError for an impossible combination of options."""
+        if self.start < 0 or self.stride < 1:
+            raise SurgsplatError(f"--start must be >= 0 and --stride >= 1, got {self.start} and "
+                                 f"{self.stride}")
+        if self.end is not None and self.end <= self.start:
+            raise SurgsplatError(f"--end ({self.end}) must be greater than --start ({self.start})")
+        if self.resize is not None and self.scale is not None:
+            raise SurgsplatError("give either --resize or --scale, not both")
+        if self.resize is not None and min(self.resize) <= 0:
+            raise SurgsplatError(f"--resize needs a positive width and height, got {self.resize}")
+        if self.scale is not None and self.scale <= 0:
+            raise SurgsplatError(f"--scale must be positive, got {self.scale}")
+        if self.focal is not None and self.focal <= 0:
+            raise SurgsplatError(f"--focal must be positive (pixels), got {self.focal}")
+        if not 0 < self.assumed_hfov_deg < 180:
+            raise SurgsplatError(f"the assumed field of view must be in (0, 180) degrees, got "
+                                 f"{self.assumed_hfov_deg}")
+        if self.masks is None and (self.tool_labels is not None or self.mask_pattern is not None
+                                   or self.allow_missing_masks):
+            raise SurgsplatError("--tool-labels, --mask-pattern and --allow-missing-masks need "
+                                 "--masks")
+        if self.tool_labels is not None and (
+                not self.tool_labels or not all(0 <= v <= 65535 for v in self.tool_labels)):
+            raise SurgsplatError(f"--tool-labels must list class IDs in 0..65535, got "
+                                 f"{self.tool_labels}")
+        self._validate_stereo()
+
+    def _validate_stereo(self) -> None:
+        if self.right is None:
+            if self.baseline is not None or self.disparity_only:
+                raise SurgsplatError("--baseline and --disparity-only need --right")
+            return
+        self.stereo.validate()
+        if self.disparity_only:
+            top = self.stereo.min_disparity + self.stereo.num_disparities
+            if top * DISPARITY_STEPS > 65535:
+                raise SurgsplatError(f"disparities up to {top} px do not fit 16-bit PNG at "
+                                     f"1/{DISPARITY_STEPS} px; search at most "
+                                     f"{65535 // DISPARITY_STEPS} px")
+            return
+        if self.baseline is None or self.baseline <= 0 or self.focal is None:
+            raise SurgsplatError("depth from stereo needs --focal (px, of the rectified left "
+                                 "camera) and a positive --baseline; or pass --disparity-only")
+
+
+def import_scene(source: str | Path, out_dir: str | Path, config: ImportConfig,
+                 progress: Progress | None = None) -> Path:
+    """Import `source` (video file or folder of frames) into the new scene folder `out_dir`.
+
+    The sources are opened, counted and paired before anything is written; if writing fails
+    (an unreadable mask, a frame of another size, Ctrl-C), the partial output is removed again.
+    """
+    config.validate()
+    out_dir = Path(out_dir)
+    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+        raise SurgsplatError(f"{out_dir} already exists and is not empty; choose a new --out "
+                             "folder")
+    report = progress or (lambda stage, done, total: None)
+    plan = _plan(Path(source), config, report)
+    existed = out_dir.is_dir()
+    try:
+        return _write_scene(plan, out_dir, config, report)
+    except BaseException:
+        # The folder was empty or absent: everything in it is this import's partial output.
+        shutil.rmtree(out_dir, ignore_errors=True)
+        if existed:
+            out_dir.mkdir()
+        raise
+
+
+class _Fitter:
+    """Checks that frames and masks have the source size and resizes them to the output size."""
+
+    def __init__(self, source_size: tuple[int, int], out_size: tuple[int, int]):
+        self.source_size = source_size  # (H, W)
+        self.out_size = out_size  # (H, W)
+
+    def __call__(self, image: np.ndarray, path: Path, label: str) -> np.ndarray:
+        self._check(image.shape, path, label)
+        if self.out_size == self.source_size:
+            return image
+        shrink = self.out_size[1] < self.source_size[1]
+        return cv2.resize(image, self.out_size[::-1],
+                          interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+    def mask(self, tool: np.ndarray, path: Path) -> np.ndarray:
+        self._check(tool.shape, path, "mask")
+        if self.out_size == self.source_size:
+            return tool
+        return cv2.resize(tool.astype(np.uint8), self.out_size[::-1],
+                          interpolation=cv2.INTER_NEAREST).astype(bool)
+
+    def _check(self, shape: tuple[int, ...], path: Path, label: str) -> None:
+        if tuple(shape[:2]) != self.source_size:
+            raise DataError(path, f"{label} is {shape[1]}x{shape[0]} (WxH) but the first frame "
+                                  f"is {self.source_size[1]}x{self.source_size[0]}")
+
+
+@dataclass
+class _Plan:
+    """What will be imported, decided (and checked) before anything is written."""
+
+    frames: FrameSource
+    right: FrameSource | None
+    selected: list[int]  # source frame indices to write, ascending
+    dropped: list[int]  # selected source frames dropped for lack of a mask
+    mask_of: list[Path | None] | None  # mask file of each source frame; None = no masks
+    fit: _Fitter
+    focal: float  # px at the output size
+    focal_note: str
+    fov: FovEstimate | None  # None = not searched
+
+
+def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
+    frames = FrameSource(source, config.pattern)
+    right = _open_right(config, frames)
+    stop = frames.count if config.end is None else min(config.end, frames.count)
+    selected = list(range(config.start, stop, config.stride))
+    if not selected:
+        raise SurgsplatError(f"--start {config.start} selects no frame: {source} has "
+                             f"{frames.count} frames")
+    mask_of = _pair_masks(frames, config)
+    dropped = []
+    if mask_of is not None:
+        dropped = [i for i in selected if mask_of[i] is None]
+        if dropped and not config.allow_missing_masks:
+            others = f" and {len(dropped) - 1} other frames" if len(dropped) > 1 else ""
+            raise DataError(config.masks, f"has no mask for {frames.frame_label(dropped[0])}"
+                                          f"{others}; pass --allow-missing-masks to drop frames "
+                                          "without a mask")
+        selected = [i for i in selected if mask_of[i] is not None]
+        if not selected:
+            raise DataError(config.masks, "has a mask for none of the selected frames")
+    _, first = next(frames.read(selected[:1]))
+    source_size = first.shape[:2]  # (H, W)
+    out_size = _output_size(source_size, config)
+    focal, focal_note = _focal(source_size, out_size, config)
+    fit = _Fitter(source_size, out_size)
+    fov = _find_fov(frames, selected, fit, config.fov, report) if config.fov_mask else None
+    return _Plan(frames, right, selected, dropped, mask_of, fit, focal, focal_note, fov)
+
+
+def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progress) -> Path:
+    """Write the selected frames, masks and depth (or disparity), then the camera and scene.json."""
+    frames, right, fit = plan.frames, plan.right, plan.fit
+    outside = None if plan.fov is None or plan.fov.kind == "full" else ~plan.fov.inside  # [H, W]
+    meta = SceneMeta(depth_unit="unknown", source=str(frames.path.resolve()))
+    depth_scale = 0.01
+    if right is not None and not config.disparity_only:
+        meta.depth_unit = config.depth_unit
+        # 16-bit range spans depths up to focal x baseline (disparity MIN_DEPTH_DISPARITY px).
+        depth_scale = plan.focal * config.baseline / MIN_DEPTH_DISPARITY / 65535
+    writer = SceneWriter(out_dir, plan.focal, meta, depth_scale=depth_scale)
+    if config.disparity_only:
+        (out_dir / DISPARITY_DIR).mkdir()
+    pairs = _read_pairs(frames, right, plan.selected)
+    for done, (index, image, right_image) in enumerate(pairs, 1):
+        image = fit(image, frames.frame_path(index), frames.frame_label(index))
+        tool = None
+        if plan.mask_of is not None:
+            mask_path = plan.mask_of[index]
+            tool = fit.mask(read_tool_labels(mask_path, config.tool_labels), mask_path)
+        if outside is not None:
+            tool = outside if tool is None else tool | outside
+        depth = None
+        if right is not None:
+            right_image = fit(right_image, right.frame_path(index), right.frame_label(index))
+            disparity = stereo_disparity(image, right_image, config.stereo)  # [H, W] px
+            if config.disparity_only:
+                stored = np.rint(disparity * DISPARITY_STEPS).astype(np.uint16)
+                disparity_path = out_dir / DISPARITY_DIR / f"{frame_stem(writer.count)}.png"
+                cv2.imwrite(str(disparity_path), stored)
+            else:
+                disparity[disparity < MIN_DEPTH_DISPARITY] = 0.0
+                depth = disparity_to_depth(disparity, plan.focal, config.baseline)
+        writer.add_frame(image, depth, tool)
+        report("import", done, len(plan.selected))
+    meta.extra = _provenance(plan, config)
+    return writer.finish()
+
+
+def _open_right(config: ImportConfig, frames: FrameSource) -> FrameSource | None:
+    if config.right is None:
+        return None
+    right = FrameSource(config.right, config.pattern)
+    if right.count != frames.count:
+        raise DataError(right.path, f"has {right.count} frames but the left source "
+                                    f"{frames.path} has {frames.count}")
+    return right
+
+
+def _pair_masks(frames: FrameSource, config: ImportConfig) -> list[Path | None] | None:
+    if config.masks is None:
+        return None
+    if (config.masks.resolve() == frames.path.resolve()
+            and (config.pattern is None or config.mask_pattern is None)):
+        raise SurgsplatError(f"frames and masks share the folder {config.masks}: pick each kind "
+                             "with --pattern and --mask-pattern (e.g. '*_endo.png' and "
+                             "'*_endo_watershed_mask.png')")
+    mask_files = list_frame_files(config.masks, config.mask_pattern, what="mask")
+    mode = resolve_mask_match(config.mask_match, frames.is_video)
+    return match_masks(frames.files, frames.count, mask_files, mode)
+
+
+def _output_size(source_size: tuple[int, int], config: ImportConfig) -> tuple[int, int]:
+    """(H, W) of the written frames."""
+    height, width = source_size
+    if config.scale is not None:
+        out_w, out_h = round(width * config.scale), round(height * config.scale)
+        if min(out_w, out_h) < 1:
+            raise SurgsplatError(f"--scale {config.scale} leaves no pixel of {width}x{height}")
+        return out_h, out_w
+    if config.resize is None:
+        return source_size
+    out_w, out_h = config.resize
+    if abs((out_w / out_h) / (width / height) - 1) > 0.01:
+        raise SurgsplatError(f"--resize {out_w}x{out_h} changes the aspect ratio of the "
+                             f"{width}x{height} frames; the scene holds one focal length, so "
+                             "keep the ratio (e.g. use --scale)")
+    return out_h, out_w
+
+
+def _focal(source_size: tuple[int, int], out_size: tuple[int, int],
+           config: ImportConfig) -> tuple[float, str]:
+    """Focal length in output pixels, and how it was obtained."""
+    source_width = source_size[1]
+    if config.focal is not None:
+        focal, note = config.focal, f"given: {config.focal:g} px at width {source_width}"
+    else:
+        focal = source_width / 2 / math.tan(math.radians(config.assumed_hfov_deg) / 2)
+        note = (f"assumed: {config.assumed_hfov_deg:g} degree horizontal field of view "
+                "(pass --focal for the real value)")
+    return focal * out_size[1] / source_width, note
+
+
+def _find_fov(frames: FrameSource, selected: list[int], fit: _Fitter, config: FovConfig,
+              report: Progress) -> FovEstimate:
+    """Field of view from the max brightness over up to FOV_SAMPLE_FRAMES selected frames."""
+    picks = np.linspace(0, len(selected) - 1, min(len(selected), FOV_SAMPLE_FRAMES))
+    sample = sorted({selected[int(round(p))] for p in picks})
+    stat = None  # [H, W] uint8
+    for done, (index, image) in enumerate(frames.read(sample), 1):
+        light = brightness(fit(image, frames.frame_path(index), frames.frame_label(index)))
+        stat = light if stat is None else np.maximum(stat, light)
+        report("field of view", done, len(sample))
+    return estimate_fov(stat, config)
+
+
+def _read_pairs(frames: FrameSource, right: FrameSource | None,
+                selected: list[int]) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+    """(index, left frame, right frame or None) for the selected frames."""
+    if right is None:
+        for index, image in frames.read(selected):
+            yield index, image, None
+        return
+    for (index, image), (_, right_image) in zip(frames.read(selected), right.read(selected)):
+        yield index, image, right_image
+
+
+def _provenance(plan: _Plan, config: ImportConfig) -> dict:
+    """scene.json `extra`: what was imported and how."""
+    frames = plan.frames
+    (source_h, source_w), (out_h, out_w) = plan.fit.source_size, plan.fit.out_size
+    extra = {
+        "importer": "surgsplat import",
+        "source_frame_count": frames.count,
+        "frame_range": {"start": config.start, "end": config.end, "stride": config.stride},
+        "source_frames": [frames.frame_label(i) for i in plan.selected],
+        "dropped_without_mask": [frames.frame_label(i) for i in plan.dropped],
+        "source_size_wh": [source_w, source_h],
+        "size_wh": [out_w, out_h],
+        "focal_px": plan.focal,
+        "focal_source": plan.focal_note,
+        "fov_mask": plan.fov.describe() if plan.fov is not None else "off",
+    }
+    if config.masks is not None:
+        extra["masks"] = {
+            "folder": str(config.masks.resolve()), "pattern": config.mask_pattern,
+            "tool_labels": (list(config.tool_labels) if config.tool_labels is not None
+                            else "binary (nonzero = tool)"),
+            "matched_by": resolve_mask_match(config.mask_match, frames.is_video),
+        }
+    if config.right is not None:
+        extra["stereo"] = {
+            "right": str(config.right.resolve()), "baseline": config.baseline,
+            "unit": config.depth_unit, "matcher": asdict(config.stereo),
+            "output": (f"{DISPARITY_DIR}/ (px x {DISPARITY_STEPS}, 0 = invalid)"
+                       if config.disparity_only else
+                       f"depth/ (disparity < {MIN_DEPTH_DISPARITY:g} px stored as 0)"),
+        }
+    return extra

@@ -1,0 +1,97 @@
+"""Tool masks from user label images: binary masks or class-ID maps, paired with frames.
+
+A binary mask holds 0 (tissue) and one other value (tool), in one channel or several. A class-ID
+mask (e.g. CholecSeg8k's watershed masks) holds one integer class per pixel, in one channel or
+in three equal channels; the classes listed as tool labels are tool, all others tissue.
+
+Mask files are paired with frames either by the numbers in their names (frame_561_endo.png and
+frame_561_endo_watershed_mask.png share (561,)) or by sorted order.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from surgsplat.data.frames_source import name_numbers
+from surgsplat.errors import DataError, SurgsplatError
+
+MASK_MATCHES = ("auto", "number", "order")
+"""How mask files are paired with frames: by the numbers in the names, by sorted order, or
+"auto" (numbers for a folder of frames, order for a video)."""
+
+
+def read_tool_labels(path: Path, tool_labels: tuple[int, ...] | None) -> np.ndarray:
+    """A mask file as bool [H, W], True = tool.
+
+    tool_labels None: a binary mask, any nonzero value (in any channel) is tool; it must hold at
+    most two distinct values. Otherwise a class-ID mask whose pixels in `tool_labels` are tool.
+    """
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise DataError(path, "cannot be read as a mask image (missing, corrupt or unknown format)")
+    if raw.ndim == 3:
+        raw = raw[..., :3]
+    if tool_labels is None:
+        values = raw.max(axis=2) if raw.ndim == 3 else raw  # [H, W]
+        distinct = np.unique(values)
+        if distinct.size > 2:
+            shown = ", ".join(str(v) for v in distinct[:8]) + (", ..." if distinct.size > 8 else "")
+            raise DataError(path, f"holds {distinct.size} distinct values ({shown}) but a binary "
+                                  "mask holds 0 and one tool value; for class-ID masks pass the "
+                                  "tool classes with --tool-labels")
+        return values > 0
+    if raw.ndim == 3:
+        if not (raw == raw[..., :1]).all():
+            raise DataError(path, "has differing colour channels, but class-ID masks hold one ID "
+                                  "per pixel (one channel or three equal ones); is this a "
+                                  "colour-coded mask? choose the ID masks with --mask-pattern")
+        raw = raw[..., 0]
+    return np.isin(raw, np.asarray(tool_labels))
+
+
+def resolve_mask_match(mode: str, is_video: bool) -> str:
+    """`mode` (one of MASK_MATCHES) with "auto" replaced by "order" or "number"."""
+    if mode not in MASK_MATCHES:
+        raise SurgsplatError(f"unknown mask matching {mode!r}; expected one of "
+                             f"{', '.join(MASK_MATCHES)}")
+    if mode == "auto":
+        return "order" if is_video else "number"
+    if mode == "number" and is_video:
+        raise SurgsplatError("a video's frames have no file names: match masks by order")
+    return mode
+
+
+def match_masks(frame_files: list[Path] | None, frame_count: int, mask_files: list[Path],
+                mode: str) -> list[Path | None]:
+    """The mask file of each frame (None where a frame has none).
+
+    frame_files: the frames' files, or None for a video; mode: "order" or "number" (see
+    `resolve_mask_match`). Matching by order needs as many masks as frames; by number, each
+    frame's and each mask's name numbers must be unique, and masks matching no frame are ignored.
+    """
+    mask_folder = mask_files[0].parent
+    if mode == "order":
+        if len(mask_files) != frame_count:
+            raise DataError(mask_folder, f"holds {len(mask_files)} mask files but the source has "
+                                         f"{frame_count} frames (masks are matched by sorted "
+                                         "order)")
+        return list(mask_files)
+    masks_by_key = _unique_keys(mask_files, "masks")
+    return [masks_by_key.get(key) for key in _unique_keys(frame_files, "frames")]  # frame order
+
+
+def _unique_keys(files: list[Path], what: str) -> dict[tuple[int, ...], Path]:
+    by_key: dict[tuple[int, ...], Path] = {}
+    for path in files:
+        key = name_numbers(path)
+        if key in by_key:
+            option = "--mask-pattern" if what == "masks" else "--pattern"
+            raise DataError(path.parent, f"{what} {by_key[key].name} and {path.name} carry the "
+                                         f"same numbers {key}, so masks cannot be matched by "
+                                         f"number; select one kind of file with {option} or "
+                                         "match by order")
+        by_key[key] = path
+    return by_key
