@@ -14,3 +14,12 @@ def shared_data() -> Path:
     if not data.is_dir():
         pytest.skip(f"real data samples not found at {data}")
     return data
+
+
+@pytest.fixture(scope="session")
+def small_phantom(tmp_path_factory) -> Path:
+    """The small 'pulling' phantom (160x128, 16 frames), generated once per test session."""
+    from surgsplat.data.phantom import PhantomConfig, generate_phantom
+
+    return generate_phantom(PhantomConfig(preset="small", motion="pulling"),
+                            tmp_path_factory.mktemp("phantom") / "small")

@@ -40,7 +40,9 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
         RowF trans[kTile], behind_alpha[kTile], grad_a[kTile];
         RowI last[kTile];
         int32_t row_last[kTile];  // per row, the largest last entry: later Gaussians skip it
-#pragma omp for schedule(dynamic, 1)
+        // interleaved static schedule: the same tiles go to the same thread on every call, so the
+        // per-thread sums, and the gradients, are reproducible
+#pragma omp for schedule(static, 1)
         for (int tile = 0; tile < tiles; ++tile) {
             const int px0 = (tile % bins.tiles_x) * kTile, py0 = (tile / bins.tiles_x) * kTile;
             const int32_t start = bins.offsets[tile], end = bins.offsets[tile + 1];

@@ -51,6 +51,7 @@ class TrainedRun:
     model: DeformableGaussians
     iteration: int
     train_seconds: float
+    peak_rss_mb: float  # of the training process
 
 
 def load_trained_run(run_dir: Path, data_dir: Path | None = None) -> TrainedRun:
@@ -64,4 +65,5 @@ def load_trained_run(run_dir: Path, data_dir: Path | None = None) -> TrainedRun:
     model.eval()
     return TrainedRun(run_dir=run_dir, config=config, scene=scene, model=model,
                       iteration=int(state["iteration"]),
-                      train_seconds=float(state["elapsed_seconds"]))
+                      train_seconds=float(state["elapsed_seconds"]),
+                      peak_rss_mb=float(state["peak_rss_mb"]))

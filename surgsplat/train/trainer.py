@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import resource
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -44,6 +45,11 @@ class StepStats:
     seconds: float  # wall time since training started (this process plus resumed runs)
 
 
+def current_peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, in MB."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def psnr_from_mse(mse: float) -> float:
     return -10.0 * math.log10(max(mse, 1e-12))
 
@@ -57,6 +63,7 @@ class Trainer:
         self.run_dir = Path(run_dir)
         self.iteration = 0
         self.elapsed = 0.0
+        self.peak_rss_mb = 0.0  # over this process and the runs it resumed
         torch.manual_seed(config.train.seed)
         points = initial_points(scene, config.init)
         field = config.deformation.build()
@@ -123,7 +130,7 @@ class Trainer:
         self.strategy.step_post_backward(self.iteration, self.model.gaussians, self.optimizer,
                                          screen_grad, out.projection.radii.detach())
         self.elapsed += time.perf_counter() - started
-        return StepStats(self.iteration, float(loss), psnr_from_mse(mse),
+        return StepStats(self.iteration, loss.item(), psnr_from_mse(mse),
                          self.model.gaussians.num_gaussians, self.elapsed)
 
     def _loss(self, out, frame: Frame) -> tuple[Tensor, float]:
@@ -169,7 +176,9 @@ class Trainer:
 
     # ---- checkpoints ----
     def state_dict(self) -> dict:
+        self.peak_rss_mb = max(self.peak_rss_mb, current_peak_rss_mb())
         return {
+            "peak_rss_mb": self.peak_rss_mb,
             "iteration": self.iteration,
             "elapsed_seconds": self.elapsed,
             "gaussians": {k: v.detach() for k, v in self.model.gaussians.params.items()},
@@ -203,3 +212,4 @@ class Trainer:
         torch.set_rng_state(state["torch_rng"])
         self.iteration = int(state["iteration"])
         self.elapsed = float(state["elapsed_seconds"])
+        self.peak_rss_mb = float(state["peak_rss_mb"])

@@ -1,0 +1,63 @@
+"""`surgsplat eval RUN`: metrics over the test frames, printed and written to RUN/metrics.json."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
+from surgsplat.train.run import load_trained_run
+
+METRICS_FILE = "metrics.json"
+
+
+def print_metrics(metrics: dict, console: Console) -> None:
+    table = Table(title="test-frame metrics", show_header=True)
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for key, value in metrics.items():
+        if key == "conventions":
+            continue
+        if isinstance(value, float):
+            text = f"{value:.4f}" if abs(value) < 10 else f"{value:.2f}"
+        else:
+            text = "null" if value is None else str(value)
+        table.add_row(key, text)
+    console.print(table)
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
+                        data: Path | None = None) -> dict:
+    """Evaluate the run, write RUN/metrics.json, print the table; returns the metrics."""
+    run = load_trained_run(run_dir, data)
+    metrics = evaluate_run(run, options or EvalOptions())
+    write_json_atomic(Path(run_dir) / METRICS_FILE, metrics)
+    console = Console()
+    print_metrics(metrics, console)
+    console.print(f"written: {Path(run_dir) / METRICS_FILE}")
+    return metrics
+
+
+def eval_command(
+    run_dir: Annotated[Path, typer.Argument(help="Run folder written by `surgsplat train`.")],
+    data: Annotated[Path | None, typer.Option(help="Scene folder (default: the run's).")] = None,
+    alexnet_weights: Annotated[Path | None, typer.Option(
+        help="torchvision AlexNet checkpoint for LPIPS (else $SURGSPLAT_ALEXNET_WEIGHTS or the "
+             "torch hub cache; LPIPS is null when none is found).")] = None,
+    geometry: Annotated[bool, typer.Option(help="Geometry against gt/ meshes (phantoms).")] = True,
+) -> None:
+    """Evaluate a trained run on its test frames (every 8th frame from 1)."""
+    evaluate_and_report(run_dir, EvalOptions(alexnet_weights=alexnet_weights, geometry=geometry),
+                        data)

@@ -1,0 +1,153 @@
+"""Write a phantom to disk: an EndoNeRF-layout scene plus its ground truth under gt/.
+
+Besides images/, depth/ (mm, the tool where the tool is), masks/ (255 = tool),
+poses_bounds.npy and scene.json, the folder holds per frame i (stem = 6-digit index):
+
+    gt/tissue_images/{stem}.png  the frame without the tool (same light and exposure)
+    gt/tissue_depth/{stem}.npy   float32 [H, W] tissue depth in mm, also behind the tool
+    gt/albedo/{stem}.png         tissue albedo
+    gt/normals/{stem}.npy        float32 [H, W, 3] unit camera-space tissue normals
+    gt/meshes/{stem}.ply         the tissue surface, camera space, mm (binary PLY)
+    gt/exposure.json             list of the per-frame exposure factors
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem
+from surgsplat.data.phantom.mesh import grid_mesh
+from surgsplat.data.phantom.motion import MOTIONS
+from surgsplat.data.phantom.scene import PhantomScene
+from surgsplat.data.phantom.shading import METAL, WET_TISSUE
+from surgsplat.data.ply import write_ply_mesh
+from surgsplat.errors import SurgsplatError
+
+GT_DIR = "gt"
+TISSUE_IMAGES_DIR = f"{GT_DIR}/tissue_images"
+TISSUE_DEPTH_DIR = f"{GT_DIR}/tissue_depth"
+ALBEDO_DIR = f"{GT_DIR}/albedo"
+NORMALS_DIR = f"{GT_DIR}/normals"
+MESHES_DIR = f"{GT_DIR}/meshes"
+EXPOSURE_FILE = f"{GT_DIR}/exposure.json"
+
+
+@dataclass(frozen=True)
+class PhantomPreset:
+    """Camera and length of a named phantom size."""
+
+    width: int
+    """Image width, pixels."""
+    height: int
+    """Image height, pixels."""
+    num_frames: int
+    """Default number of frames."""
+    focal: float
+    """Focal length, pixels."""
+    mesh_step: int
+    """Pixels between neighbouring ground-truth mesh vertices."""
+
+
+ENDONERF_FOCAL = 569.4682
+"""Focal length of the real EndoNeRF camera at 640 x 512, pixels."""
+PRESETS = {
+    "small": PhantomPreset(width=160, height=128, num_frames=16, focal=ENDONERF_FOCAL / 4,
+                           mesh_step=4),
+    "full": PhantomPreset(width=640, height=512, num_frames=64, focal=ENDONERF_FOCAL, mesh_step=8),
+}
+
+
+@dataclass
+class PhantomConfig:
+    """Which phantom to generate."""
+
+    preset: str = "small"
+    """Size preset: "small" (160x128, 16 frames) or "full" (640x512, 64 frames)."""
+    motion: str = "pulling"
+    """Tissue motion: "pulling" (tool lifts the tissue) or "cutting" (a groove opens)."""
+    seed: int = 0
+    """Seed of the texture, surface shape and tool path; equal seeds give identical files."""
+    num_frames: int | None = None
+    """Number of frames; None = the preset's default."""
+
+
+def check_phantom_request(config: PhantomConfig, out_dir: Path) -> tuple[PhantomPreset, int]:
+    """(preset, number of frames) of `config`; SurgsplatError if `config` is invalid or
+    `out_dir` exists and is not an empty folder."""
+    if config.preset not in PRESETS:
+        raise SurgsplatError(f"unknown phantom preset {config.preset!r}; valid presets: "
+                             f"{', '.join(PRESETS)}")
+    if config.motion not in MOTIONS:
+        raise SurgsplatError(f"unknown phantom motion {config.motion!r}; valid motions: "
+                             f"{', '.join(MOTIONS)}")
+    preset = PRESETS[config.preset]
+    num_frames = preset.num_frames if config.num_frames is None else config.num_frames
+    if num_frames < 1:
+        raise SurgsplatError(f"number of frames must be at least 1, got {num_frames}")
+    out_dir = Path(out_dir)
+    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+        raise SurgsplatError(f"{out_dir} already exists and is not an empty folder; choose "
+                             "another output folder or remove it")
+    return preset, num_frames
+
+
+def generate_phantom(config: PhantomConfig, out_dir: Path,
+                     progress: Callable[[int, int], None] | None = None) -> Path:
+    """Render the phantom `config` into the new or empty folder `out_dir` and return it;
+    `progress(done, total)` is called after each frame."""
+    preset, num_frames = check_phantom_request(config, out_dir)
+    out_dir = Path(out_dir)
+
+    scene = PhantomScene(preset.width, preset.height, preset.focal, num_frames, config.motion,
+                         config.seed)
+    meta = SceneMeta(depth_unit="mm", source=f"phantom {config.preset} {config.motion} "
+                                             f"seed {config.seed}",
+                     extra=_extra(config, preset, num_frames, scene))
+    writer = SceneWriter(out_dir, focal=preset.focal, meta=meta)
+    for sub in (TISSUE_IMAGES_DIR, TISSUE_DEPTH_DIR, ALBEDO_DIR, NORMALS_DIR, MESHES_DIR):
+        (out_dir / sub).mkdir(parents=True, exist_ok=True)
+    exposures = []
+    for index in range(num_frames):
+        frame = scene.render(index)
+        writer.add_frame(frame.image, frame.depth, frame.tool_mask)
+        stem = frame_stem(index)
+        _write_rgb(out_dir / TISSUE_IMAGES_DIR / f"{stem}.png", frame.tissue_image)
+        _write_rgb(out_dir / ALBEDO_DIR / f"{stem}.png", frame.albedo)
+        np.save(out_dir / TISSUE_DEPTH_DIR / f"{stem}.npy", frame.tissue_depth)
+        np.save(out_dir / NORMALS_DIR / f"{stem}.npy", frame.normals)
+        vertices, faces, colors = grid_mesh(frame.tissue_depth, scene.xn, scene.yn,
+                                            preset.mesh_step, frame.albedo)
+        write_ply_mesh(out_dir / MESHES_DIR / f"{stem}.ply", vertices, faces, colors)
+        exposures.append(frame.exposure)
+        if progress is not None:
+            progress(index + 1, num_frames)
+    (out_dir / EXPOSURE_FILE).write_text(json.dumps(exposures) + "\n")
+    return writer.finish()
+
+
+def _write_rgb(path: Path, image: np.ndarray) -> None:
+    """Write float RGB [H, W, 3] in [0, 1] as an 8-bit PNG."""
+    pixels = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+    cv2.imwrite(str(path), pixels[..., ::-1])
+
+
+def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
+           scene: PhantomScene) -> dict:
+    """Facts about the phantom for scene.json."""
+    return {
+        "preset": config.preset, "motion": config.motion, "seed": config.seed,
+        "num_frames": num_frames, "width": preset.width, "height": preset.height,
+        "focal": preset.focal, "mesh_step_px": preset.mesh_step,
+        "light": asdict(scene.light), "tissue_material": asdict(WET_TISSUE),
+        "tool_material": asdict(METAL), "exposure": asdict(scene.exposure),
+        "tool": asdict(scene.geometry), "trocar_mm": scene.trocar.tolist(),
+        "gt": {"tissue_images": TISSUE_IMAGES_DIR, "tissue_depth": TISSUE_DEPTH_DIR,
+               "albedo": ALBEDO_DIR, "normals": NORMALS_DIR, "meshes": MESHES_DIR,
+               "exposure": EXPOSURE_FILE, "depth_unit": "mm"},
+    }

@@ -1,0 +1,118 @@
+"""Metrics of a trained run over its test frames (i % 8 == 1), written to RUN/metrics.json.
+
+Image metrics exclude tool pixels in two named conventions (see image_metrics.py); depth error
+is over tissue pixels with valid depth; on a phantom, geometry is measured against the
+ground-truth tissue mesh of each test frame (gt/meshes/<frame>.ply), using the reconstructed
+surface: the rendered depth back-projected over tissue pixels.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from surgsplat.data.ply import read_ply_mesh
+from surgsplat.data.layout import frame_stem
+from surgsplat.eval.geometry_metrics import backproject, depth_rmse, geometry_metrics
+from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
+from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
+from surgsplat.model.dynamic import render_time
+from surgsplat.train.run import TrainedRun
+
+GEOMETRY_KEYS = ("chamfer_mm", "p2s_mean_mm", "p2s_median_mm", "p2s_p95_mm", "fscore_1mm")
+GEOMETRY_POINTS = 60_000
+"""Reconstructed points per test frame used for geometry (a seeded subsample)."""
+
+
+@dataclass
+class EvalOptions:
+    """What `evaluate_run` measures."""
+
+    alexnet_weights: Path | None = None
+    """torchvision AlexNet checkpoint for LPIPS (default: env var / torch hub cache)."""
+    geometry: bool = True
+    """Measure geometry against gt/ meshes when the scene has them."""
+
+
+def mesh_path(scene_root: Path, index: int) -> Path:
+    return scene_root / "gt" / "meshes" / f"{frame_stem(index)}.ply"
+
+
+def evaluate_run(run: TrainedRun, options: EvalOptions) -> dict:
+    """All metrics of `run` as a JSON-ready dict (means over test frames)."""
+    scene = run.scene
+    frames = scene.test_frames
+    background = torch.tensor(run.config.train.background, dtype=torch.float32)
+    lpips_model, lpips_reason = load_lpips(options.alexnet_weights)
+    rows: dict[str, list[float]] = {}
+    render_seconds = 0.0
+    for frame in frames:
+        started = time.perf_counter()
+        out = render_time(run.model, scene.camera, frame.time, background)
+        render_seconds += time.perf_counter() - started
+        pred = out.rgb.clamp(0, 1)
+        row = image_row(pred, frame.image, frame.tissue, lpips_model)
+        if frame.depth is not None:
+            valid = frame.tissue & (frame.depth > 0)
+            if valid.any():
+                row["depth_rmse"] = depth_rmse(out.depth, frame.depth, frame.tissue)
+        gt_mesh = mesh_path(scene.root, frame.index)
+        if options.geometry and gt_mesh.is_file():
+            row.update(frame_geometry(out.depth, out.alpha, frame.tissue, scene.camera.K,
+                                      gt_mesh, seed=frame.index))
+        for key, value in row.items():
+            rows.setdefault(key, []).append(value)
+
+    metrics: dict = {"test_frames": len(frames), "iteration": run.iteration}
+    for key, values in rows.items():
+        metrics[key] = float(np.mean(values))
+    if "depth_rmse" in metrics:
+        unit = scene.depth_unit
+        metrics[f"depth_rmse_{unit}" if unit == "mm" else "depth_rmse"] = metrics.pop("depth_rmse")
+        metrics["depth_unit"] = unit
+    if lpips_model is None:
+        metrics["lpips"] = None
+        metrics["lpips_note"] = lpips_reason
+    metrics["fps"] = len(frames) / render_seconds if render_seconds > 0 else None
+    metrics["train_seconds"] = run.train_seconds
+    metrics["num_gaussians"] = run.model.gaussians.num_gaussians
+    metrics["peak_rss_mb"] = run.peak_rss_mb
+    metrics["conventions"] = {
+        "psnr_zeroed": "tool pixels set to 0 in both images, mean over all pixels",
+        "psnr_tissue": "mean squared error over tissue pixels only",
+        "ssim": "as ssim_zeroed: tool pixels zeroed, SSIM map averaged over all pixels",
+        "lpips": "AlexNet LPIPS v0.1, inputs scaled to [-1, 1], tool pixels zeroed",
+        "depth_rmse": "over tissue pixels with valid depth",
+        "geometry": "rendered depth back-projected over tissue pixels vs gt tissue mesh",
+        "fps": "rendering the test frames, this machine",
+        "peak_rss_mb": "peak resident memory of the training process",
+    }
+    return metrics
+
+
+def image_row(pred: torch.Tensor, gt: torch.Tensor, tissue: torch.Tensor,
+              lpips_model: LPIPS | None) -> dict[str, float]:
+    row = {"psnr_zeroed": psnr_zeroed(pred, gt, tissue),
+           "psnr_tissue": psnr_tissue(pred, gt, tissue),
+           "ssim": ssim_zeroed(pred, gt, tissue),
+           "ssim_tissue": ssim_tissue(pred, gt, tissue)}
+    if lpips_model is not None:
+        row["lpips"] = lpips_distance(lpips_model, pred, gt, tissue)
+    return row
+
+
+def frame_geometry(depth: torch.Tensor, alpha: torch.Tensor, tissue: torch.Tensor,
+                   K: torch.Tensor, gt_mesh: Path, seed: int) -> dict[str, float]:
+    """Geometry metrics of one frame's reconstructed tissue surface against its gt mesh."""
+    surface = tissue & (alpha > 0.5)
+    points = backproject(depth, K, surface).numpy()
+    if len(points) > GEOMETRY_POINTS:
+        keep = np.random.default_rng(seed).choice(len(points), GEOMETRY_POINTS, replace=False)
+        points = points[keep]
+    vertices, faces = read_ply_mesh(gt_mesh)
+    metrics = geometry_metrics(points, vertices, faces, seed=seed)
+    return {key: metrics[key] for key in GEOMETRY_KEYS}

@@ -1,0 +1,31 @@
+"""`surgsplat phantom`: writes a loadable scene and prints its summary; bad options are one line."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from surgsplat.data.scene import load_scene
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_phantom_command_writes_scene(tmp_path: Path):
+    out = tmp_path / "scene"
+    result = run_cli("phantom", "--out", str(out), "--motion", "cutting", "--frames", "3",
+                     "--seed", "2")
+    assert result.returncode == 0, result.stderr
+    assert "scene summary" in result.stdout and "phantom written to" in result.stdout
+    scene = load_scene(out)
+    assert len(scene.frames) == 3 and scene.meta.extra["motion"] == "cutting"
+    assert scene.meta.extra["seed"] == 2
+
+
+def test_phantom_command_rejects_unknown_preset(tmp_path: Path):
+    result = run_cli("phantom", "--out", str(tmp_path / "x"), "--preset", "huge")
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert "valid presets: small, full" in result.stderr
+    assert not (tmp_path / "x").exists()
