@@ -1,0 +1,102 @@
+"""The deformation-field interface: offsets of the canonical Gaussians at a time t in [0, 1].
+
+A field maps the canonical means [N, 3], the per-Gaussian attributes it keeps in
+`GaussianModel.params` (so that densification clones, splits and prunes them with the Gaussians)
+and a time t to a `Deformation`. Fields first produce one [N, D] tensor of channels, in the order
+means (3), log-scales (3), quaternion (4) and, when colour deforms, SH DC colour (3);
+`Deformation.from_channels` splits it.
+
+Mean offsets are produced in units of `position_scale()`, half the diagonal of the canonical point
+cloud's bounding box (`set_bounds`), and scaled to scene units on output. One learning rate thus
+suits scenes in millimetres or metres, as 3DGS and Deform3DGS achieve by multiplying position
+learning rates by the scene extent.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+GEOMETRY_CHANNELS = 10
+"""Deformed geometry channels: mean offset (3), log-scale offset (3), quaternion offset (4)."""
+COLOR_CHANNELS = 3
+"""Deformed colour channels: SH DC offset (3)."""
+
+
+def num_channels(deform_color: bool) -> int:
+    """Channels a field produces per Gaussian: 10 for geometry, 13 with colour."""
+    return GEOMETRY_CHANNELS + (COLOR_CHANNELS if deform_color else 0)
+
+
+@dataclass
+class Deformation:
+    """Offsets of every Gaussian at one time; all zero is the canonical state."""
+
+    d_means: Tensor  # [N, 3] offset of the mean (scene units)
+    d_log_scales: Tensor  # [N, 3] added to the log-scales
+    d_quats: Tensor  # [N, 4] added to the (unnormalised) quaternion (w, x, y, z)
+    d_colors: Tensor | None  # [N, 3] added to the SH DC colour coefficients, or None
+
+    @classmethod
+    def from_channels(cls, channels: Tensor, position_scale: Tensor) -> "Deformation":
+        """Split channels [N, 10] or [N, 13] (see num_channels); mean offsets are multiplied by
+        position_scale (a scalar tensor) to give scene units."""
+        known = (num_channels(False), num_channels(True))
+        if channels.dim() != 2 or channels.shape[1] not in known:
+            raise ValueError(f"expected [N, 10] or [N, 13] deformation channels, got "
+                             f"{tuple(channels.shape)}")
+        has_color = channels.shape[1] > GEOMETRY_CHANNELS
+        d_colors = channels[:, GEOMETRY_CHANNELS:] if has_color else None
+        return cls(d_means=channels[:, 0:3] * position_scale, d_log_scales=channels[:, 3:6],
+                   d_quats=channels[:, 6:10], d_colors=d_colors)
+
+
+class DeformationField(nn.Module, ABC):
+    """A deformation over time of N canonical Gaussians.
+
+    Holds the canonical point cloud's bounding box as buffers (bounds_lo, bounds_hi [3], scene
+    units), so that it travels with the field's state_dict into checkpoints.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.register_buffer("bounds_lo", torch.full((3,), -1.0))
+        self.register_buffer("bounds_hi", torch.full((3,), 1.0))
+
+    def set_bounds(self, lo: Tensor, hi: Tensor) -> None:
+        """Set the canonical point cloud's axis-aligned bounding box, lo [3] and hi [3]."""
+        if lo.shape != (3,) or hi.shape != (3,):
+            raise ValueError(f"bounds must be two [3] tensors, got {tuple(lo.shape)} and "
+                             f"{tuple(hi.shape)}")
+        if not (torch.isfinite(lo).all() and torch.isfinite(hi).all() and (hi >= lo).all()):
+            raise ValueError(f"bounds must be finite with hi >= lo, got lo={lo.tolist()} "
+                             f"hi={hi.tolist()}")
+        self.bounds_lo.copy_(lo.detach())
+        self.bounds_hi.copy_(hi.detach())
+
+    def position_scale(self) -> Tensor:
+        """Scalar: half the diagonal of the bounds, the unit of mean offsets before scaling."""
+        return 0.5 * (self.bounds_hi - self.bounds_lo).norm().clamp_min(1e-6)
+
+    @abstractmethod
+    def per_gaussian_attributes(self, num: int) -> dict[str, Tensor]:
+        """Initial learnable per-Gaussian tensors, name -> [num, ...], stored with the Gaussians."""
+
+    @abstractmethod
+    def forward(self, means: Tensor, attributes: dict[str, Tensor], t: float) -> Deformation:
+        """Offsets at time t of Gaussians with canonical means [N, 3] and their attributes."""
+
+    @abstractmethod
+    def regularisation(self) -> dict[str, Tensor]:
+        """Named scalar regularisers, weighted by TrainConfig.regularisation."""
+
+    @abstractmethod
+    def param_groups(self) -> list[dict]:
+        """Optimiser groups of the field's own parameters: {"name", "params", "lr"} each."""
+
+    @abstractmethod
+    def attribute_lrs(self) -> dict[str, float]:
+        """Learning rate of each per-Gaussian attribute, by name."""

@@ -1,0 +1,148 @@
+"""HexPlane deformation field (K-Planes / 4DGS / EndoGaussian / Endo-GSG section 3.2).
+
+Six learnable feature planes per scale: three spatial (xy, xz, yz) and three spatio-temporal
+(xt, yt, zt). A Gaussian's canonical mean, normalised to [-1, 1] by the bounds (`set_bounds`,
+points outside are clamped to the border), and the time t in [0, 1] are looked up bilinearly in
+each plane (grid_sample, align_corners=True); the six C-dimensional features of one scale are
+multiplied elementwise (Hadamard product) and the scales concatenated. A small MLP turns the
+[N, C x scales] features into the deformation channels (means, log-scales, quaternion, colour).
+
+Initialisation as in K-Planes/4DGS: spatial planes uniform(0.1, 0.5), spatio-temporal planes 1
+(so time initially leaves the features unchanged), and the MLP's last layer zero, so that the
+field starts as the identity (all offsets zero).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from surgsplat.errors import SurgsplatError
+from surgsplat.fields.deformation import Deformation, DeformationField, num_channels
+
+SPATIAL_AXES = ((0, 1), (0, 2), (1, 2))
+"""Axes (x=0, y=1, z=2) of the spatial planes xy, xz, yz: (plane width axis, plane height axis)."""
+
+
+@dataclass
+class HexPlaneConfig:
+    """Resolutions, MLP size and learning rates of a HexPlane field."""
+
+    base_resolution: int = 32
+    """Spatial resolution (cells per axis) of the coarsest scale."""
+    multires: tuple[int, ...] = (1, 2)
+    """Spatial resolution multipliers, one feature scale each."""
+    max_resolution: int = 64
+    """Upper limit of any scale's spatial resolution."""
+    time_resolution: int = 25
+    """Cells along time of the spatio-temporal planes (about half the frame count)."""
+    feature_dim: int = 32
+    """Feature channels C of every plane."""
+    mlp_width: int = 64
+    """Width of the MLP's hidden layers."""
+    mlp_depth: int = 1
+    """Number of hidden layers of the MLP (each linear + ReLU)."""
+    grid_lr: float = 1.6e-3
+    """Adam learning rate of the feature planes."""
+    mlp_lr: float = 1.6e-4
+    """Adam learning rate of the MLP."""
+    deform_color: bool = False
+    """Also deform the SH DC colour."""
+
+    def build(self) -> "HexPlaneField":
+        return HexPlaneField(self)
+
+
+class HexPlaneField(DeformationField):
+    """spatial_planes[s]: [3, C, R_s, R_s] (xy, xz, yz; height axis = second axis of the pair);
+    time_planes[s]: [3, C, T, R_s] (xt, yt, zt; height = time, width = x, y or z)."""
+
+    def __init__(self, config: HexPlaneConfig):
+        super().__init__()
+        if config.base_resolution < 2 or config.time_resolution < 2 or not config.multires:
+            raise SurgsplatError("hexplane needs base_resolution >= 2, time_resolution >= 2 and "
+                                 "at least one multires scale")
+        if config.mlp_depth < 1:
+            raise SurgsplatError(f"hexplane mlp_depth must be >= 1, got {config.mlp_depth}")
+        self.config = config
+        channels = config.feature_dim
+        self.spatial_planes = nn.ParameterList()
+        self.time_planes = nn.ParameterList()
+        for multiplier in config.multires:
+            resolution = min(config.base_resolution * multiplier, config.max_resolution)
+            spatial = torch.empty(3, channels, resolution, resolution).uniform_(0.1, 0.5)
+            self.spatial_planes.append(nn.Parameter(spatial))
+            self.time_planes.append(
+                nn.Parameter(torch.ones(3, channels, config.time_resolution, resolution)))
+        layers: list[nn.Module] = [nn.Linear(channels * len(config.multires), config.mlp_width)]
+        for _ in range(config.mlp_depth - 1):
+            layers += [nn.ReLU(), nn.Linear(config.mlp_width, config.mlp_width)]
+        head = nn.Linear(config.mlp_width, num_channels(config.deform_color))
+        nn.init.zeros_(head.weight)
+        nn.init.zeros_(head.bias)
+        layers += [nn.ReLU(), head]
+        self.mlp = nn.Sequential(*layers)
+
+    def normalise(self, means: Tensor) -> Tensor:
+        """[N, 3] scene units -> [N, 3] in [-1, 1] over the bounds (outside values unclamped)."""
+        span = (self.bounds_hi - self.bounds_lo).clamp_min(1e-6)
+        return (means - self.bounds_lo) / span * 2.0 - 1.0
+
+    def features(self, means: Tensor, t: float) -> Tensor:
+        """[N, 3] canonical means at time t -> [C x scales, N] plane features."""
+        coords = self.normalise(means)  # [N, 3]
+        spatial_grid = torch.stack([coords[:, [a for a, _ in SPATIAL_AXES]],
+                                    coords[:, [b for _, b in SPATIAL_AXES]]], dim=-1)  # [N, 3, 2]
+        time = torch.full_like(coords, 2.0 * min(max(float(t), 0.0), 1.0) - 1.0)
+        time_grid = torch.stack([coords, time], dim=-1)  # [N, 3, 2]: (x | y | z, t)
+        scales = []
+        for spatial, temporal in zip(self.spatial_planes, self.time_planes):
+            xy, xz, yz = _sample(spatial, spatial_grid).unbind(0)  # [C, N] each
+            xt, yt, zt = _sample(temporal, time_grid).unbind(0)  # [C, N] each
+            scales.append(xy * xz * yz * (xt * yt * zt))
+        return torch.cat(scales, dim=0)  # [C x scales, N]
+
+    def forward(self, means: Tensor, attributes: dict[str, Tensor], t: float) -> Deformation:
+        channels = self.mlp(self.features(means, t).T)  # [N, 10 or 13]
+        return Deformation.from_channels(channels, self.position_scale())
+
+    def regularisation(self) -> dict[str, Tensor]:
+        """plane_tv: per spatial plane, the mean squared difference of neighbouring cells along
+        each of its two axes, summed over axes, planes and scales (K-Planes' plane TV).
+        time_smoothness: per spatio-temporal plane, the mean squared second difference along
+        time, summed over planes and scales (K-Planes/4DGS time smoothness)."""
+        plane_tv = sum(_mean_square_per_plane(torch.diff(plane, dim=2))
+                       + _mean_square_per_plane(torch.diff(plane, dim=3))
+                       for plane in self.spatial_planes)
+        time_smoothness = sum(_mean_square_per_plane(torch.diff(plane, n=2, dim=2))
+                              for plane in self.time_planes)
+        return {"plane_tv": plane_tv, "time_smoothness": time_smoothness}
+
+    def per_gaussian_attributes(self, num: int) -> dict[str, Tensor]:
+        return {}
+
+    def param_groups(self) -> list[dict]:
+        planes = [*self.spatial_planes, *self.time_planes]
+        return [{"name": "hexplane_grid", "params": planes, "lr": self.config.grid_lr},
+                {"name": "hexplane_mlp", "params": list(self.mlp.parameters()),
+                 "lr": self.config.mlp_lr}]
+
+    def attribute_lrs(self) -> dict[str, float]:
+        return {}
+
+
+def _sample(planes: Tensor, points: Tensor) -> Tensor:
+    """Bilinear lookup of planes [P, C, H, W] at points [N, P, 2] ((width, height) coordinates in
+    [-1, 1], border-clamped) -> [P, C, N]. The points form a [P, 1, N] grid: a row, along which
+    PyTorch's CPU kernel vectorises."""
+    grid = points.transpose(0, 1).unsqueeze(1).contiguous()  # [P, 1, N, 2]
+    return F.grid_sample(planes, grid, mode="bilinear", padding_mode="border",
+                         align_corners=True)[:, :, 0]
+
+
+def _mean_square_per_plane(differences: Tensor) -> Tensor:
+    """[P, ...] -> scalar: the mean square of each plane's entries, summed over the P planes."""
+    return differences.square().flatten(1).mean(dim=1).sum()

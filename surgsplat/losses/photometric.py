@@ -1,0 +1,51 @@
+"""Photometric losses over the tissue pixels of a frame: L1, D-SSIM and their 3DGS blend.
+
+Images are float [H, W, C] in [0, 1]; masks are bool [H, W] with True = count the pixel (tissue).
+Pixels outside the mask never influence a loss: L1 averages over the masked pixels, and D-SSIM
+zeroes the unmasked pixels in both images before filtering (as EndoGaussian and Deform3DGS do with
+their tool masks), so the SSIM windows of masked pixels near a tool see the same zeros in both
+images, whatever the tool pixels held.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from surgsplat.eval.ssim import ssim
+
+
+def _check(pred: Tensor, gt: Tensor, mask: Tensor) -> None:
+    if pred.shape != gt.shape or pred.dim() != 3:
+        raise ValueError(f"expected two images of one shape [H, W, C], got {tuple(pred.shape)} "
+                         f"and {tuple(gt.shape)}")
+    if mask.shape != pred.shape[:2] or mask.dtype != torch.bool:
+        raise ValueError(f"expected a bool mask of shape {tuple(pred.shape[:2])}, got "
+                         f"{mask.dtype} {tuple(mask.shape)}")
+
+
+def masked_l1(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+    """Mean absolute difference over the masked pixels and all channels; 0 if the mask is empty."""
+    _check(pred, gt, mask)
+    weights = mask.unsqueeze(-1).to(pred.dtype)  # [H, W, 1]
+    count = weights.sum().clamp_min(1.0) * pred.shape[2]
+    return ((pred - gt).abs() * weights).sum() / count
+
+
+def d_ssim(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+    """1 - SSIM (the 3DGS convention, in [0, 2]) over the masked pixels, with unmasked pixels
+    zeroed in both images; 0 if the mask is empty."""
+    _check(pred, gt, mask)
+    if not mask.any():
+        return pred.sum() * 0.0
+    weights = mask.unsqueeze(-1).to(pred.dtype)  # [H, W, 1]
+    return 1.0 - ssim(pred * weights, gt * weights, mask)
+
+
+def photometric_loss(pred: Tensor, gt: Tensor, mask: Tensor, lambda_dssim: float) -> Tensor:
+    """(1 - lambda) L1 + lambda D-SSIM over the masked pixels (3DGS uses lambda = 0.2);
+    D-SSIM is not computed when lambda is 0."""
+    loss = masked_l1(pred, gt, mask)
+    if lambda_dssim == 0:
+        return loss
+    return (1.0 - lambda_dssim) * loss + lambda_dssim * d_ssim(pred, gt, mask)

@@ -1,0 +1,59 @@
+"""Depth L1 and inverse-depth L1 over tissue pixels with a measured depth."""
+
+import pytest
+import torch
+
+from surgsplat.losses.depth import depth_l1, inverse_depth_l1
+
+
+def depths(dtype=torch.float32):
+    generator = torch.Generator().manual_seed(0)
+    pred = 20 + 30 * torch.rand(6, 7, generator=generator, dtype=dtype)  # millimetres
+    gt = 20 + 30 * torch.rand(6, 7, generator=generator, dtype=dtype)
+    gt[0, :3] = 0.0  # no measurement
+    mask = torch.ones(6, 7, dtype=torch.bool)
+    mask[4:, 5:] = False  # tool
+    return pred, gt, mask
+
+
+def test_depth_l1_averages_over_measured_tissue_pixels():
+    pred, gt, mask = depths()
+    valid = mask & (gt > 0)
+    torch.testing.assert_close(depth_l1(pred, gt, mask), (pred - gt).abs()[valid].mean())
+    assert float(depth_l1(gt, gt, mask)) == 0.0
+
+
+def test_inverse_depth_l1_skips_unmeasured_and_undrawn_pixels():
+    pred, gt, mask = depths()
+    pred[2, 2] = 0.0  # nothing rendered there
+    valid = mask & (gt > 0) & (pred > 0)
+    expected = (1 / pred[valid] - 1 / gt[valid]).abs().mean()
+    torch.testing.assert_close(inverse_depth_l1(pred, gt, mask), expected)
+    pred.requires_grad_(True)
+    inverse_depth_l1(pred, gt, mask).backward()
+    assert torch.isfinite(pred.grad).all()
+    assert pred.grad[2, 2] == 0 and pred.grad[0, 0] == 0 and pred.grad[5, 6] == 0
+
+
+@pytest.mark.parametrize("loss", [depth_l1, inverse_depth_l1])
+def test_excluded_pixels_do_not_change_the_loss(loss):
+    pred, gt, mask = depths()
+    reference = float(loss(pred, gt, mask))
+    pred2 = pred.clone()
+    pred2[~mask] = 1000.0
+    pred2[0, :3] = 5.0  # where gt = 0
+    assert float(loss(pred2, gt, mask)) == reference
+    pred2[3, 3] += 1.0
+    assert float(loss(pred2, gt, mask)) != reference
+
+
+@pytest.mark.parametrize("loss", [depth_l1, inverse_depth_l1])
+def test_gradcheck_and_empty_and_shapes(loss):
+    pred, gt, mask = depths(torch.float64)
+    pred.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda p: loss(p, gt, mask), (pred,))
+    assert float(loss(pred.detach(), gt, torch.zeros_like(mask))) == 0.0
+    with pytest.raises(ValueError):
+        loss(pred, gt[:-1], mask[:-1])
+    with pytest.raises(ValueError):
+        loss(pred, gt, mask.float())
