@@ -10,6 +10,7 @@ from typing import Any
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.fields.hexplane import HexPlaneConfig
+from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig
 from surgsplat.model.init_points import InitConfig
 from surgsplat.train.config import TrainConfig
@@ -32,6 +33,8 @@ class MethodConfig:
     """Optimisation."""
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     """Densification and pruning."""
+    exposure: ExposureConfig = field(default_factory=ExposureConfig)
+    """Per-time exposure gain of the rendered image."""
 
 
 def to_dict(config: Any) -> dict:

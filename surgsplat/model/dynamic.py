@@ -12,6 +12,7 @@ from torch import Tensor, nn
 
 from surgsplat.data.scene import Camera
 from surgsplat.fields.deformation import DeformationField
+from surgsplat.model.exposure import ExposureCurve
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.render.render import RenderOutput, render
 
@@ -29,12 +30,21 @@ class GaussianState:
 
 
 class DeformableGaussians(nn.Module):
-    """Canonical Gaussians deformed over time t in [0, 1]."""
+    """Canonical Gaussians deformed over time t in [0, 1], seen through an exposure curve."""
 
-    def __init__(self, gaussians: GaussianModel, field: DeformationField):
+    def __init__(self, gaussians: GaussianModel, field: DeformationField,
+                 exposure: ExposureCurve):
         super().__init__()
         self.gaussians = gaussians
         self.field = field
+        self.exposure = exposure
+
+    def render(self, camera: Camera, t: float, background: Tensor | None = None,
+               absgrad: Tensor | None = None, planar_depth: bool = False) -> RenderOutput:
+        """The view at time t; rgb includes the exposure gain of time t."""
+        out = render_state(self.state_at(t), camera, background, absgrad, planar_depth)
+        out.rgb = out.rgb * self.exposure.gain(t)
+        return out
 
     def state_at(self, t: float) -> GaussianState:
         params = self.gaussians.params
@@ -69,4 +79,4 @@ def render_state(state: GaussianState, camera: Camera, background: Tensor | None
 def render_time(model: DeformableGaussians, camera: Camera, t: float,
                 background: Tensor | None = None) -> RenderOutput:
     """Render the model at time t (no gradients), e.g. for evaluation and videos."""
-    return render_state(model.state_at(t), camera, background)
+    return model.render(camera, t, background)

@@ -27,8 +27,14 @@ class GaussianConfig:
     """Opacity of every Gaussian at initialisation."""
     init_scale_factor: float = 0.8
     """Initial isotropic scale = this x the mean distance to the 3 nearest neighbours."""
-    max_gaussians: int = 200_000
+    max_gaussians: int = 150_000
     """Hard cap on the number of Gaussians (densification stops adding beyond it)."""
+    max_per_pixel: float = 0.5
+    """Also cap the count at this many Gaussians per image pixel (keeps small scenes small)."""
+
+    def cap(self, width: int, height: int) -> int:
+        """The Gaussian budget of a width x height scene."""
+        return min(self.max_gaussians, int(self.max_per_pixel * width * height))
 
 
 def rgb_to_sh_dc(rgb: Tensor) -> Tensor:

@@ -61,9 +61,10 @@ def _dense(grad: Tensor | None, shape: tuple[int, ...]) -> Tensor:
 
 
 def check_finite(**tensors: Tensor) -> None:
-    """ValueError naming the first input with NaN or Inf entries."""
+    """ValueError naming the first input with NaN or Inf entries (one reduction per tensor on
+    the fast path: a finite sum means finite entries, barring float overflow)."""
     for name, tensor in tensors.items():
-        if not bool(torch.isfinite(tensor).all()):
+        if not bool(torch.isfinite(tensor.sum())) and not bool(torch.isfinite(tensor).all()):
             bad = int((~torch.isfinite(tensor)).sum())
             raise ValueError(f"rasterize: {name} has {bad} non-finite (NaN or Inf) entries")
 
@@ -92,17 +93,15 @@ def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tens
     depths [N] (sort key), radii [N] int (0 = culled: not drawn, no gradient).
     absgrad [N], when given, receives during backward the per-Gaussian sum over pixels of the
     absolute screen-space gradient of the mean (the norm of the summed |dL/dx|, |dL/dy|).
-    Raises ValueError on NaN/Inf inputs of drawn Gaussians.
+    Raises ValueError on NaN/Inf inputs (project() keeps culled Gaussians finite).
     """
     if features.ndim != 2 or features.shape[0] != means2d.shape[0]:
         raise ValueError(f"rasterize: features must be [N, C] with N = {means2d.shape[0]}, "
                          f"got {tuple(features.shape)}")
     if width < 1 or height < 1:
         raise ValueError(f"rasterize: image size must be positive, got {width}x{height}")
-    drawn = radii > 0
-    check_finite(means2d=means2d.detach()[drawn], conics=conics.detach()[drawn],
-                 opacities=opacities.detach()[drawn], features=features.detach()[drawn],
-                 depths=depths.detach()[drawn])
+    check_finite(means2d=means2d.detach(), conics=conics.detach(), opacities=opacities.detach(),
+                 features=features.detach(), depths=depths.detach())
     if resolve_backend(backend, features.dtype) == "reference":
         return rasterize_reference(means2d, conics, opacities, features, depths, radii,
                                    width, height, absgrad)

@@ -11,6 +11,7 @@ from surgsplat.errors import DataError
 from surgsplat.methods.config import MethodConfig, update_from_dict
 from surgsplat.methods.registry import method_config
 from surgsplat.model.dynamic import DeformableGaussians
+from surgsplat.model.exposure import ExposureCurve
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.train.checkpoint import load_checkpoint
 from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, SCENE_FILE
@@ -61,7 +62,10 @@ def load_trained_run(run_dir: Path, data_dir: Path | None = None) -> TrainedRun:
     state = load_checkpoint(run_dir / CHECKPOINT)
     field = config.deformation.build()
     field.load_state_dict(state["field"])
-    model = DeformableGaussians(GaussianModel(state["gaussians"], state["sh_degree"]), field)
+    exposure = ExposureCurve(config.exposure)
+    exposure.load_state_dict(state["exposure"])
+    model = DeformableGaussians(GaussianModel(state["gaussians"], state["sh_degree"]), field,
+                                exposure)
     model.eval()
     return TrainedRun(run_dir=run_dir, config=config, scene=scene, model=model,
                       iteration=int(state["iteration"]),

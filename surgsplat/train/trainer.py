@@ -22,7 +22,8 @@ from surgsplat.data.scene import Frame, Scene
 from surgsplat.losses.depth import depth_l1, inverse_depth_l1
 from surgsplat.losses.photometric import photometric_loss
 from surgsplat.methods.config import MethodConfig, to_dict
-from surgsplat.model.dynamic import DeformableGaussians, render_state
+from surgsplat.model.dynamic import DeformableGaussians
+from surgsplat.model.exposure import ExposureCurve
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.init_points import initial_points
 from surgsplat.train.checkpoint import load_checkpoint, save_atomic
@@ -71,12 +72,13 @@ class Trainer:
         gaussians = GaussianModel.from_points(
             points.means, points.colors, config.gaussians,
             field.per_gaussian_attributes(points.means.shape[0]))
-        self.model = DeformableGaussians(gaussians, field)
+        self.model = DeformableGaussians(gaussians, field, ExposureCurve(config.exposure))
         centre = points.means.mean(dim=0)
         self.scene_extent = float((points.means - centre).norm(dim=1).max())
         self.optimizer = self._build_optimizer()
         self.strategy = DensifyStrategy(config.densify, self.scene_extent,
-                                        config.gaussians.max_gaussians)
+                                        config.gaussians.cap(scene.camera.width,
+                                                             scene.camera.height))
         self.frame_generator = torch.Generator().manual_seed(config.train.seed)
         self._frame_queue: list[int] = []
         self.background = torch.tensor(config.train.background, dtype=torch.float32)
@@ -95,6 +97,8 @@ class Trainer:
         params = self.model.gaussians.params
         groups = [{"name": name, "params": [params[name]], "lr": lrs[name]} for name in params]
         groups += self.model.field.param_groups()
+        groups.append({"name": "exposure", "params": [self.model.exposure.log_gains],
+                       "lr": self.config.exposure.lr})
         return torch.optim.Adam(groups, eps=1e-15, fused=True)
 
     def _update_learning_rates(self) -> None:
@@ -118,9 +122,8 @@ class Trainer:
         self.iteration += 1
         self._update_learning_rates()
         frame = self._next_frame()
-        state = self.model.state_at(frame.time)
-        absgrad = torch.zeros(state.means.shape[0])
-        out = render_state(state, self.scene.camera, self.background, absgrad=absgrad)
+        absgrad = torch.zeros(self.model.gaussians.num_gaussians)
+        out = self.model.render(self.scene.camera, frame.time, self.background, absgrad=absgrad)
         loss, mse = self._loss(out, frame)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -184,6 +187,7 @@ class Trainer:
             "gaussians": {k: v.detach() for k, v in self.model.gaussians.params.items()},
             "sh_degree": self.model.gaussians.sh_degree,
             "field": self.model.field.state_dict(),
+            "exposure": self.model.exposure.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "strategy": self.strategy.state_dict(),
             "scene_extent": self.scene_extent,
@@ -201,8 +205,9 @@ class Trainer:
         """Restore a checkpoint of this run (model, field, optimiser, strategy, sampling)."""
         state = load_checkpoint(path)
         gaussians = GaussianModel(state["gaussians"], state["sh_degree"])
-        self.model = DeformableGaussians(gaussians, self.model.field)
+        self.model = DeformableGaussians(gaussians, self.model.field, self.model.exposure)
         self.model.field.load_state_dict(state["field"])
+        self.model.exposure.load_state_dict(state["exposure"])
         self.scene_extent = float(state["scene_extent"])
         self.optimizer = self._build_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])

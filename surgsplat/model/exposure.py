@@ -1,0 +1,43 @@
+"""A smooth per-time exposure gain of the rendered image.
+
+Endoscopes change exposure over time (auto-exposure, light-source power); tissue colour should
+not. The gain is exp(g(t)) per colour channel, g piecewise linear in t over `knots` evenly
+spaced knots, so test frames between training frames get an interpolated exposure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+
+@dataclass
+class ExposureConfig:
+    """The exposure curve of a run."""
+
+    knots: int = 16
+    """Knots of the piecewise-linear log-gain over t in [0, 1] (0 = no exposure model)."""
+    lr: float = 5e-3
+    """Adam learning rate of the log-gains."""
+
+
+class ExposureCurve(nn.Module):
+    """Per-channel log-gain g(t), linear between `knots` evenly spaced knots; starts at 0."""
+
+    def __init__(self, config: ExposureConfig):
+        super().__init__()
+        self.log_gains = nn.Parameter(torch.zeros(max(config.knots, 0), 3))  # [K, 3]
+
+    def gain(self, t: float) -> Tensor:
+        """[3] multiplicative gain at time t (ones without knots)."""
+        knots = self.log_gains.shape[0]
+        if knots == 0:
+            return torch.ones(3)
+        if knots == 1:
+            return self.log_gains[0].exp()
+        position = min(max(t, 0.0), 1.0) * (knots - 1)
+        left = min(int(position), knots - 2)
+        weight = position - left
+        return ((1 - weight) * self.log_gains[left] + weight * self.log_gains[left + 1]).exp()
