@@ -67,26 +67,20 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
             }
             for (int32_t k = end - 1; k >= start; --k) {
                 const int32_t g = bins.ids[k];
-                const PixelBox& box = bins.boxes[g];
-                const float a = conics[3 * g], b = conics[3 * g + 1], c = conics[3 * g + 2];
-                const float opacity = opacities[g], q_max = bins.q_max[g];
-                const float mx = means2d[2 * g], my = means2d[2 * g + 1];
-                const RowF dx = lanes + (px0 + 0.5f - mx);
-                const RowF qa = a * dx * dx, qb = 2.0f * b * dx;
-                const int row0 = std::max(box.y0 - py0, 0), row1 = std::min(box.y1 - py0, kTile - 1);
+                const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
+                const float a = s.a, b = s.b, c = s.c, opacity = s.opacity;
+                const RowF dx = s.dx;
                 const float* feature = features + g * channels;
-                // rows of a Gaussian whose box spills over the tile's sides may miss the tile
-                const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
                 RowF g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, abs_x{}, abs_y{};
                 std::fill(grad_f.begin(), grad_f.end(), row_of(0.0f));
                 bool touched = false;
-                for (int row = row0; row <= row1; ++row) {
+                for (int row = s.row0; row <= s.row1; ++row) {
                     if (k >= row_last[row]) continue;
-                    const float dy = py0 + row + 0.5f - my;
-                    if (spills && !row_touches_tile(mx, a, b, c, q_max, dy, px0)) continue;
+                    const float dy = py0 + row + 0.5f - s.my;
+                    if (!s.reaches(dy, px0)) continue;
                     touched = true;
-                    const RowF q = qa + dy * (qb + c * dy);
-                    const RowF raw = row_min(opacity * row_exp(-0.5f * q), kAlphaMax);
+                    const RowF q = s.q(dy);
+                    const RowF raw = s.alpha(q);
                     const RowI in = (row_of(k) < last[row]) & (raw >= kAlphaMin) & (q >= 0.0f);
                     const RowF alpha = select(in, raw, row_of(0.0f));
                     const RowF t_before = trans[row] / (1.0f - alpha);

@@ -121,6 +121,34 @@ struct TileBins {
     std::vector<float> q_max;       // [N] alpha >= kAlphaMin where q <= q_max = 2 ln(o / kAlphaMin)
 };
 
+// One Gaussian as seen from one tile: what both compositing passes evaluate row by row.
+struct SplatInTile {
+    float mx, my, a, b, c, opacity, q_max;
+    RowF dx, qa, qb;   // per lane: dx, a dx^2 and 2 b dx, so that q = qa + dy (qb + c dy)
+    int row0, row1;    // the tile rows its alpha box covers
+    bool spills;       // its box spills over the tile's sides: some rows may miss the tile
+
+    SplatInTile(const float* means2d, const float* conics, const float* opacities,
+                const TileBins& bins, int32_t g, int px0, int py0, RowF lanes)
+        : mx(means2d[2 * g]), my(means2d[2 * g + 1]), a(conics[3 * g]), b(conics[3 * g + 1]),
+          c(conics[3 * g + 2]), opacity(opacities[g]), q_max(bins.q_max[g]) {
+        const PixelBox& box = bins.boxes[g];
+        dx = lanes + (px0 + 0.5f - mx);
+        qa = a * dx * dx;
+        qb = 2.0f * b * dx;
+        row0 = box.y0 - py0 > 0 ? box.y0 - py0 : 0;
+        row1 = box.y1 - py0 < kTile - 1 ? box.y1 - py0 : kTile - 1;
+        spills = box.x0 < px0 || box.x1 >= px0 + kTile;
+    }
+
+    // Whether tile row offset dy can reach alpha >= kAlphaMin inside the tile.
+    bool reaches(float dy, int px0) const {
+        return !spills || row_touches_tile(mx, a, b, c, q_max, dy, px0);
+    }
+    RowF q(float dy) const { return qa + dy * (qb + c * dy); }
+    RowF alpha(RowF q) const { return row_min(opacity * row_exp(-0.5f * q), kAlphaMax); }
+};
+
 TileBins bin_gaussians(const float* means2d, const float* conics, const float* opacities,
                        const float* depths, const int32_t* radii, int64_t n, int width,
                        int height);

@@ -33,24 +33,15 @@ void rasterize_forward(const float* means2d, const float* conics, const float* o
             }
             for (int32_t k = start; k < end; ++k) {
                 const int32_t g = bins.ids[k];
-                const PixelBox& box = bins.boxes[g];
-                const float a = conics[3 * g], b = conics[3 * g + 1], c = conics[3 * g + 2];
-                const float opacity = opacities[g], q_max = bins.q_max[g];
-                const float mx = means2d[2 * g], my = means2d[2 * g + 1];
-                // q = a dx^2 + 2 b dx dy + c dy^2 = qa + dy (qb + c dy) per lane
-                const RowF dx = lanes + (px0 + 0.5f - mx);
-                const RowF qa = a * dx * dx, qb = 2.0f * b * dx;
-                const int row0 = std::max(box.y0 - py0, 0), row1 = std::min(box.y1 - py0, kTile - 1);
+                const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
                 const float* feature = features + g * channels;
-                // rows of a Gaussian whose box spills over the tile's sides may miss the tile
-                const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
                 bool any_live = false;
-                for (int row = row0; row <= row1; ++row) {
+                for (int row = s.row0; row <= s.row1; ++row) {
                     if (!row_live[row]) continue;
-                    const float dy = py0 + row + 0.5f - my;
-                    if (spills && !row_touches_tile(mx, a, b, c, q_max, dy, px0)) continue;
-                    const RowF q = qa + dy * (qb + c * dy);
-                    const RowF alpha = row_min(opacity * row_exp(-0.5f * q), kAlphaMax);
+                    const float dy = py0 + row + 0.5f - s.my;
+                    if (!s.reaches(dy, px0)) continue;
+                    const RowF q = s.q(dy);
+                    const RowF alpha = s.alpha(q);
                     const RowI in = live[row] & (alpha >= kAlphaMin) & (q >= 0.0f);
                     const RowF t_next = trans[row] * (1.0f - alpha);
                     const RowI stop = in & (t_next < kTransmittanceMin);

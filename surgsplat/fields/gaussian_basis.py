@@ -23,6 +23,7 @@ The field has no network parameters and no regulariser.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -53,6 +54,11 @@ class GaussianBasisConfig:
     """Adam learning rate of the basis log-widths."""
     deform_color: bool = False
     """Also deform the SH DC colour."""
+
+    def for_frames(self, num_frames: int) -> "GaussianBasisConfig":
+        """This config for a clip of `num_frames`: at most one basis function per two frames,
+        so that the curves cannot interpolate the held-out times arbitrarily."""
+        return dataclasses.replace(self, num_basis=max(2, min(self.num_basis, num_frames // 2)))
 
     def build(self) -> "GaussianBasisField":
         return GaussianBasisField(self)

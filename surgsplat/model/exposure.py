@@ -7,6 +7,7 @@ spaced knots, so test frames between training frames get an interpolated exposur
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -21,6 +22,10 @@ class ExposureConfig:
     """Knots of the piecewise-linear log-gain over t in [0, 1] (0 = no exposure model)."""
     lr: float = 5e-3
     """Adam learning rate of the log-gains."""
+
+    def for_frames(self, num_frames: int) -> "ExposureConfig":
+        """This config for a clip of `num_frames`: at most one knot per two frames."""
+        return dataclasses.replace(self, knots=min(self.knots, num_frames // 2))
 
 
 class ExposureCurve(nn.Module):

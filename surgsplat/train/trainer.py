@@ -59,6 +59,9 @@ class Trainer:
     """Trains a DeformableGaussians model on a scene into a run folder."""
 
     def __init__(self, config: MethodConfig, scene: Scene, run_dir: Path):
+        num_frames = len(scene.frames)
+        config.deformation = config.deformation.for_frames(num_frames)
+        config.exposure = config.exposure.for_frames(num_frames)
         self.config = config
         self.scene = scene
         self.run_dir = Path(run_dir)
