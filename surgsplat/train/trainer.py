@@ -158,7 +158,7 @@ class Trainer:
     def fit(self, on_step: Callable[[StepStats], None] | None = None) -> None:
         """Train to config.train.iterations; Ctrl-C saves a checkpoint and re-raises."""
         self.write_run_files()
-        log = open(self.run_dir / LOG_FILE, "a")
+        log = open(self.run_dir / LOG_FILE, "a", buffering=1)  # line-buffered: a crash keeps the log
         try:
             while self.iteration < self.config.train.iterations:
                 stats = self.step()
