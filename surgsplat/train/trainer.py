@@ -62,6 +62,9 @@ class Trainer:
         num_frames = len(scene.frames)
         config.deformation = config.deformation.for_frames(num_frames)
         config.exposure = config.exposure.for_frames(num_frames)
+        budget = config.gaussians.cap(scene.camera.width, scene.camera.height)
+        # start with at most half the budget, leaving room for densification
+        config.init.max_points = min(config.init.max_points, budget // 2)
         self.config = config
         self.scene = scene
         self.run_dir = Path(run_dir)
@@ -79,9 +82,7 @@ class Trainer:
         centre = points.means.mean(dim=0)
         self.scene_extent = float((points.means - centre).norm(dim=1).max())
         self.optimizer = self._build_optimizer()
-        self.strategy = DensifyStrategy(config.densify, self.scene_extent,
-                                        config.gaussians.cap(scene.camera.width,
-                                                             scene.camera.height))
+        self.strategy = DensifyStrategy(config.densify, self.scene_extent, budget)
         self.frame_generator = torch.Generator().manual_seed(config.train.seed)
         self._frame_queue: list[int] = []
         self.background = torch.tensor(config.train.background, dtype=torch.float32)
