@@ -22,3 +22,5 @@ void expect_size(const A& array, size_t size, const char* name) {
 }
 
 void bind_rasterize(nanobind::module_& m);
+void bind_hexplane(nanobind::module_& m);
+void bind_blur(nanobind::module_& m);

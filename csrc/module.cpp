@@ -11,4 +11,6 @@ NB_MODULE(_native, m) {
     nb::set_leak_warnings(false);
     m.def("max_threads", [] { return omp_get_max_threads(); }, "OpenMP threads the kernels use.");
     bind_rasterize(m);
+    bind_hexplane(m);
+    bind_blur(m);
 }

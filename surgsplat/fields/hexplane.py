@@ -7,6 +7,9 @@ each plane (grid_sample, align_corners=True); the six C-dimensional features of 
 multiplied elementwise (Hadamard product) and the scales concatenated. A small MLP turns the
 [N, C x scales] features into the deformation channels (means, log-scales, quaternion, colour).
 
+The lookup runs in the native kernel (csrc/hexplane, forward and backward fused over the six
+planes) for float32 CPU tensors when it is built; `_sample` with grid_sample is the reference.
+
 Initialisation as in K-Planes/4DGS: spatial planes uniform(0.1, 0.5), spatio-temporal planes 1
 (so time initially leaves the features unchanged), and the MLP's last layer zero, so that the
 field starts as the identity (all offsets zero).
@@ -14,7 +17,9 @@ field starts as the identity (all offsets zero).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
@@ -22,6 +27,10 @@ from torch import Tensor, nn
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.deformation import Deformation, DeformationField, num_channels
+from surgsplat.render.native import native_module
+
+Backend = Literal["auto", "native", "reference"]
+"""Implementation of the plane lookup: see plane_features."""
 
 SPATIAL_AXES = ((0, 1), (0, 2), (1, 2))
 """Axes (x=0, y=1, z=2) of the spatial planes xy, xz, yz: (plane width axis, plane height axis)."""
@@ -51,6 +60,12 @@ class HexPlaneConfig:
     """Adam learning rate of the MLP."""
     deform_color: bool = False
     """Also deform the SH DC colour."""
+
+    def for_frames(self, num_frames: int) -> "HexPlaneConfig":
+        """This config for a clip of `num_frames`: time resolution at most half the frame count
+        (as 4DGS / EndoGaussian choose it), so held-out times are interpolated, not memorised."""
+        return dataclasses.replace(
+            self, time_resolution=max(2, min(self.time_resolution, num_frames // 2)))
 
     def build(self) -> "HexPlaneField":
         return HexPlaneField(self)
@@ -93,17 +108,9 @@ class HexPlaneField(DeformationField):
 
     def features(self, means: Tensor, t: float) -> Tensor:
         """[N, 3] canonical means at time t -> [C x scales, N] plane features."""
-        coords = self.normalise(means)  # [N, 3]
-        spatial_grid = torch.stack([coords[:, [a for a, _ in SPATIAL_AXES]],
-                                    coords[:, [b for _, b in SPATIAL_AXES]]], dim=-1)  # [N, 3, 2]
-        time = torch.full_like(coords, 2.0 * min(max(float(t), 0.0), 1.0) - 1.0)
-        time_grid = torch.stack([coords, time], dim=-1)  # [N, 3, 2]: (x | y | z, t)
-        scales = []
-        for spatial, temporal in zip(self.spatial_planes, self.time_planes):
-            xy, xz, yz = _sample(spatial, spatial_grid).unbind(0)  # [C, N] each
-            xt, yt, zt = _sample(temporal, time_grid).unbind(0)  # [C, N] each
-            scales.append(xy * xz * yz * (xt * yt * zt))
-        return torch.cat(scales, dim=0)  # [C x scales, N]
+        time = 2.0 * min(max(float(t), 0.0), 1.0) - 1.0
+        return plane_features(self.normalise(means), time, list(self.spatial_planes),
+                              list(self.time_planes))
 
     def forward(self, means: Tensor, attributes: dict[str, Tensor], t: float) -> Deformation:
         channels = self.mlp(self.features(means, t).T)  # [N, 10 or 13]
@@ -132,6 +139,75 @@ class HexPlaneField(DeformationField):
 
     def attribute_lrs(self) -> dict[str, float]:
         return {}
+
+
+def plane_features(coords: Tensor, time: float, spatial_planes: list[Tensor],
+                   time_planes: list[Tensor], backend: Backend = "auto") -> Tensor:
+    """Normalised coordinates [N, 3] (x, y, z in [-1, 1], outside values border-clamped) at the
+    normalised time `time` in [-1, 1], with per scale the spatial [3, C, R, R] and temporal
+    [3, C, T, R] planes -> [C x scales, N] features (see HexPlaneField).
+
+    backend "native": the fused kernel (float32 CPU tensors); "reference": grid_sample; "auto":
+    native when the inputs are float32 on the CPU and the kernel is built, else the reference.
+    """
+    if _resolve_backend(backend, [coords, *spatial_planes, *time_planes]) == "native":
+        stacks = [plane for pair in zip(spatial_planes, time_planes) for plane in pair]
+        return _NativePlaneFeatures.apply(coords, time, *stacks).T
+    spatial_grid = torch.stack([coords[:, [a for a, _ in SPATIAL_AXES]],
+                                coords[:, [b for _, b in SPATIAL_AXES]]], dim=-1)  # [N, 3, 2]
+    time_grid = torch.stack([coords, torch.full_like(coords, time)], -1)  # [N, 3, 2]: (x|y|z, t)
+    scales = []
+    for spatial, temporal in zip(spatial_planes, time_planes):
+        xy, xz, yz = _sample(spatial, spatial_grid).unbind(0)  # [C, N] each
+        xt, yt, zt = _sample(temporal, time_grid).unbind(0)  # [C, N] each
+        scales.append(xy * xz * yz * (xt * yt * zt))
+    return torch.cat(scales, dim=0)  # [C x scales, N]
+
+
+def _resolve_backend(backend: Backend, tensors: list[Tensor]) -> Literal["native", "reference"]:
+    """The backend `auto` means for these inputs; errors when "native" cannot run them."""
+    if backend == "reference":
+        return "reference"
+    if any(x.dtype != torch.float32 or x.device.type != "cpu" for x in tensors):
+        if backend == "native":
+            raise ValueError("hexplane: the native backend takes float32 CPU tensors")
+        return "reference"
+    native = native_module()
+    if native is None or not hasattr(native, "hexplane_forward"):
+        if backend == "native":
+            raise RuntimeError("hexplane: the native module is not built")
+        return "reference"
+    return "native"
+
+
+def _native_planes(stacks: list[Tensor]) -> list:
+    """Per scale [3, C, R, R] spatial and [3, C, T, R] temporal stacks -> the flat list of
+    [C, H, W] arrays the kernel takes: xy, xz, yz, xt, yt, zt of each scale in turn."""
+    return [plane.numpy() for stack in stacks for plane in stack.unbind(0)]
+
+
+class _NativePlaneFeatures(torch.autograd.Function):
+    """Autograd wrapper of the native sampler: coordinates [N, 3], the time (a float, no
+    gradient) and the spatial and temporal plane stacks of each scale in turn -> [N, C x scales]."""
+
+    @staticmethod
+    def forward(ctx, coords: Tensor, time: float, *stacks: Tensor) -> Tensor:
+        points = torch.cat([coords.detach(), coords.new_full((coords.shape[0], 1), time)], dim=1)
+        stacks = tuple(stack.detach().contiguous() for stack in stacks)
+        out = coords.new_empty(coords.shape[0], len(stacks) // 2 * stacks[0].shape[1])
+        native_module().hexplane_forward(points.numpy(), _native_planes(stacks), out.numpy())
+        ctx.save_for_backward(points, *stacks)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out: Tensor) -> tuple[Tensor | None, ...]:
+        points, *stacks = ctx.saved_tensors
+        grad_coords = points.new_empty(points.shape[0], 3)
+        grad_stacks = [torch.empty_like(stack) for stack in stacks]
+        native_module().hexplane_backward(
+            points.numpy(), _native_planes(stacks), grad_out.contiguous().numpy(),
+            grad_coords.numpy(), _native_planes(grad_stacks))
+        return grad_coords, None, *grad_stacks
 
 
 def _sample(planes: Tensor, points: Tensor) -> Tensor:
