@@ -1,0 +1,42 @@
+"""train -> eval -> render through the CLI on the small phantom, and the one-line errors a user
+meets on the way (existing run without --resume, resume without a checkpoint, unknown method)."""
+
+import json
+
+
+def one_error_line(result) -> str:
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    assert len(lines) == 1 and lines[0].startswith("error:"), result.stderr
+    return lines[0]
+
+
+def test_train_eval_render(small_phantom, tmp_path, cli):
+    run = tmp_path / "run"
+    trained = cli("train", "--method", "deform3dgs", "--data", str(small_phantom), "--out", str(run),
+                  "--iters", "6")
+    assert trained.returncode == 0, trained.stderr
+    assert "already holds a run" in one_error_line(
+        cli("train", "--data", str(small_phantom), "--out", str(run), "--iters", "6"))
+    resumed = cli("train", "--out", str(run), "--resume", "--iters", "9")
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resuming" in resumed.stdout and "trained 9 iterations" in resumed.stdout
+
+    evaluated = cli("eval", str(run))
+    assert evaluated.returncode == 0, evaluated.stderr
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["iteration"] == 9 and metrics["test_frames"] == 2
+    assert "psnr_tissue" in metrics and "chamfer_mm" in metrics
+
+    rendered = cli("render", str(run), "--fps", "5")
+    assert rendered.returncode == 0, rendered.stderr
+    for name in ("rgb.mp4", "depth.mp4", "side_by_side.mp4"):
+        assert (run / "videos" / name).stat().st_size > 1000
+
+
+def test_user_mistakes_are_one_line(small_phantom, tmp_path, cli):
+    assert "nothing to resume" in one_error_line(cli("train", "--out", str(tmp_path / "x"),
+                                                     "--resume"))
+    assert "unknown method" in one_error_line(
+        cli("train", "--method", "nope", "--data", str(small_phantom), "--out", str(tmp_path / "y")))
+    assert "config.json" in one_error_line(cli("eval", str(tmp_path)))
