@@ -29,7 +29,7 @@ class GaussianConfig:
     """Initial isotropic scale = this x the mean distance to the 3 nearest neighbours."""
     max_gaussians: int = 150_000
     """Hard cap on the number of Gaussians (densification stops adding beyond it)."""
-    max_per_pixel: float = 0.5
+    max_per_pixel: float = 0.25
     """Also cap the count at this many Gaussians per image pixel (keeps small scenes small)."""
 
     def cap(self, width: int, height: int) -> int:

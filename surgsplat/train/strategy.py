@@ -28,7 +28,7 @@ class DensifyConfig:
     """No densification or opacity reset after this iteration (pruning stops too)."""
     every: int = 100
     """Densify and prune every this many iterations."""
-    grad_threshold: float = 0.0008
+    grad_threshold: float = 0.002
     """Mean absolute screen-space gradient (NDC-scaled, per visible step) above which a Gaussian
     is densified."""
     percent_dense: float = 0.01
@@ -109,6 +109,8 @@ class DensifyStrategy:
         clone, split = candidates & ~large, candidates & large
         clone_idx = _strongest(clone, mean_grad, room)
         split_idx = _strongest(split, mean_grad, max(room - clone_idx.numel(), 0) // 2)
+        if clone_idx.numel():
+            self._share_opacity(model, clone_idx)
         rows = {name: value[clone_idx] for name, value in model.params.items()}
         split_rows = self._split_rows(model, split_idx)
         new_rows = {name: torch.cat([rows[name], split_rows[name]]) for name in rows}
@@ -120,6 +122,16 @@ class DensifyStrategy:
             keep = torch.ones(model.num_gaussians, dtype=torch.bool)
             keep[split_idx] = False
             keep_gaussians(model, optimizer, keep)
+
+    @staticmethod
+    def _share_opacity(model: GaussianModel, index: Tensor) -> None:
+        """Give the Gaussians about to be cloned the opacity o' = 1 - sqrt(1 - o), so that the
+        original and its copy composite to the original opacity o (as 3DGS-MCMC does): cloning
+        then adds capacity without changing the image, which matters on short CPU schedules."""
+        logits = model.params["opacity_logits"]
+        opacity = torch.sigmoid(logits[index])
+        shared = (1.0 - torch.sqrt(1.0 - opacity)).clamp(1e-6, 1.0 - 1e-6)
+        logits[index] = torch.logit(shared)
 
     def _split_rows(self, model: GaussianModel, index: Tensor) -> dict[str, Tensor]:
         """Two children per parent, positioned by sampling the parent's Gaussian."""

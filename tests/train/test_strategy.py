@@ -38,6 +38,9 @@ def test_clone_small_and_split_large_high_gradient_gaussians():
                           torch.tensor([0.5, 0.5, 0.5, 2 / 1.6, 2 / 1.6]), atol=1e-5)
     clone_means = model.params["means"][2]  # the clone is appended after the survivors
     assert torch.equal(clone_means, model.params["means"][0])
+    # the original and its clone composite to the original opacity 0.9
+    shared = torch.sigmoid(model.params["opacity_logits"][[0, 2]])
+    assert torch.allclose(1 - (1 - shared[0]) * (1 - shared[1]), torch.tensor(0.9), atol=1e-5)
 
 
 def test_prune_transparent_and_oversized():
