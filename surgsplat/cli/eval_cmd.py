@@ -11,6 +11,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from surgsplat.cli.progress import progress_bar
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.train.run import load_trained_run
 
@@ -42,7 +43,10 @@ def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
                         data: Path | None = None) -> dict:
     """Evaluate the run, write RUN/metrics.json, print the table; returns the metrics."""
     run = load_trained_run(run_dir, data)
-    metrics = evaluate_run(run, options or EvalOptions())
+    with progress_bar() as bar:
+        task = bar.add_task("evaluate", total=len(run.scene.test_frames))
+        metrics = evaluate_run(run, options or EvalOptions(),
+                               lambda done, _: bar.update(task, completed=done))
     write_json_atomic(Path(run_dir) / METRICS_FILE, metrics)
     console = Console()
     print_metrics(metrics, console)

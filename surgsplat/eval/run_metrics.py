@@ -9,6 +9,7 @@ surface: the rendered depth back-projected over tissue pixels.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,8 +43,10 @@ def mesh_path(scene_root: Path, index: int) -> Path:
     return scene_root / "gt" / "meshes" / f"{frame_stem(index)}.ply"
 
 
-def evaluate_run(run: TrainedRun, options: EvalOptions) -> dict:
-    """All metrics of `run` as a JSON-ready dict (means over test frames)."""
+def evaluate_run(run: TrainedRun, options: EvalOptions,
+                 progress: Callable[[int, int], None] | None = None) -> dict:
+    """All metrics of `run` as a JSON-ready dict (means over test frames); `progress(done,
+    total)` is called after each test frame."""
     scene = run.scene
     frames = scene.test_frames
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
@@ -66,6 +69,8 @@ def evaluate_run(run: TrainedRun, options: EvalOptions) -> dict:
                                       gt_mesh, seed=frame.index))
         for key, value in row.items():
             rows.setdefault(key, []).append(value)
+        if progress:
+            progress(len(rows["psnr_tissue"]), len(frames))
 
     metrics: dict = {"test_frames": len(frames), "iteration": run.iteration}
     for key, values in rows.items():
