@@ -105,7 +105,7 @@ def print_row(row: dict) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " "))
     parser.add_argument("--json", action="store_true", help="one JSON object per run")
     parser.add_argument("--minutes", type=float, default=10.0, help="wall budget per run")
     parser.add_argument("--presets", nargs="+", default=["deform3dgs", "endogaussian"])
