@@ -24,3 +24,4 @@ void expect_size(const A& array, size_t size, const char* name) {
 void bind_rasterize(nanobind::module_& m);
 void bind_hexplane(nanobind::module_& m);
 void bind_blur(nanobind::module_& m);
+void bind_project(nanobind::module_& m);

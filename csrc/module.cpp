@@ -13,4 +13,5 @@ NB_MODULE(_native, m) {
     bind_rasterize(m);
     bind_hexplane(m);
     bind_blur(m);
+    bind_project(m);
 }

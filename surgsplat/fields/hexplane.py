@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal
 
 import torch
 import torch.nn.functional as F
@@ -27,10 +26,7 @@ from torch import Tensor, nn
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.deformation import Deformation, DeformationField, num_channels
-from surgsplat.render.native import native_module
-
-Backend = Literal["auto", "native", "reference"]
-"""Implementation of the plane lookup: see plane_features."""
+from surgsplat.render.native import Backend, native_module, resolve_backend
 
 SPATIAL_AXES = ((0, 1), (0, 2), (1, 2))
 """Axes (x=0, y=1, z=2) of the spatial planes xy, xz, yz: (plane width axis, plane height axis)."""
@@ -150,7 +146,7 @@ def plane_features(coords: Tensor, time: float, spatial_planes: list[Tensor],
     backend "native": the fused kernel (float32 CPU tensors); "reference": grid_sample; "auto":
     native when the inputs are float32 on the CPU and the kernel is built, else the reference.
     """
-    if _resolve_backend(backend, [coords, *spatial_planes, *time_planes]) == "native":
+    if resolve_backend("hexplane", backend, [coords, *spatial_planes, *time_planes]) == "native":
         stacks = [plane for pair in zip(spatial_planes, time_planes) for plane in pair]
         return _NativePlaneFeatures.apply(coords, time, *stacks).T
     spatial_grid = torch.stack([coords[:, [a for a, _ in SPATIAL_AXES]],
@@ -162,22 +158,6 @@ def plane_features(coords: Tensor, time: float, spatial_planes: list[Tensor],
         xt, yt, zt = _sample(temporal, time_grid).unbind(0)  # [C, N] each
         scales.append(xy * xz * yz * (xt * yt * zt))
     return torch.cat(scales, dim=0)  # [C x scales, N]
-
-
-def _resolve_backend(backend: Backend, tensors: list[Tensor]) -> Literal["native", "reference"]:
-    """The backend `auto` means for these inputs; errors when "native" cannot run them."""
-    if backend == "reference":
-        return "reference"
-    if any(x.dtype != torch.float32 or x.device.type != "cpu" for x in tensors):
-        if backend == "native":
-            raise ValueError("hexplane: the native backend takes float32 CPU tensors")
-        return "reference"
-    native = native_module()
-    if native is None or not hasattr(native, "hexplane_forward"):
-        if backend == "native":
-            raise RuntimeError("hexplane: the native module is not built")
-        return "reference"
-    return "native"
 
 
 def _native_planes(stacks: list[Tensor]) -> list:

@@ -1,4 +1,10 @@
-"""Projection of 3D Gaussians to screen-space ellipses (EWA splatting), in PyTorch with autograd.
+"""Projection of 3D Gaussians to screen-space ellipses (EWA splatting): one contract, two backends.
+
+`native`: the C++/OpenMP kernel in csrc/project (float32, fixed camera), forward and backward
+written out per Gaussian. `reference`: PyTorch with autograd (any dtype, differentiable camera).
+`auto` picks native for float32 CPU inputs when it is built and the camera needs no gradient.
+At 100k Gaussians the reference's many small batched operations cost about as much as the
+rasterizer itself on a 2-core CPU; the kernel takes a few milliseconds.
 
 Pixel (column i, row j) has its centre at (i + 0.5, j + 0.5); K maps camera coordinates to these
 continuous pixel coordinates. The camera looks down +z.
@@ -11,6 +17,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from surgsplat.render.native import Backend, dense_grad, native_module, resolve_backend
 from surgsplat.render.rotation import quaternion_to_matrix
 
 FOV_CLAMP = 1.3
@@ -37,8 +44,8 @@ def covariance_3d(scales: Tensor, quats: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int, height: int,
-            world_to_camera: Tensor | None = None, near: float = 0.01,
-            lowpass: float = 0.3) -> Projection:
+            world_to_camera: Tensor | None = None, near: float = 0.01, lowpass: float = 0.3,
+            backend: Backend = "auto") -> Projection:
     """Project Gaussians (means [N,3], scales [N,3] linear, quats [N,4] (w,x,y,z)) with the pinhole
     K [3,3] and pose world_to_camera [4,4] (identity when None).
 
@@ -46,10 +53,25 @@ def project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int,
     Gaussians with depth below `near`, a degenerate covariance, or a 3-sigma box entirely outside
     the image get radius 0.
     """
+    if world_to_camera is None:
+        world_to_camera = torch.eye(4, dtype=means.dtype)
+    camera_fixed = not (K.requires_grad or world_to_camera.requires_grad)
+    if backend == "native" and not camera_fixed:
+        raise ValueError("project: the native backend takes a camera without gradients")
+    tensors = [means, scales, quats, K, world_to_camera]
+    if camera_fixed and resolve_backend("project", backend, tensors) == "native":
+        return _native_project(means, scales, quats, K, width, height, world_to_camera, near,
+                               lowpass)
+    return project_reference(means, scales, quats, K, width, height, world_to_camera, near,
+                             lowpass)
+
+
+def project_reference(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int,
+                      height: int, world_to_camera: Tensor, near: float,
+                      lowpass: float) -> Projection:
+    """`project` in PyTorch with autograd."""
     dtype = means.dtype
     K = K.to(dtype)
-    if world_to_camera is None:
-        world_to_camera = torch.eye(4, dtype=dtype)
     world_to_camera = world_to_camera.to(dtype)
     R_wc, t_wc = world_to_camera[:3, :3], world_to_camera[:3, 3]
     means_cam = means @ R_wc.T + t_wc
@@ -90,6 +112,52 @@ def project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int,
         radii = radii.clamp(max=float(2 * max(width, height) + 1)).to(torch.int32)
     return Projection(means2d=means2d, conics=conics, depths=z, radii=radii,
                       means_camera=means_cam, rotations_camera=R_wc @ rotation)
+
+
+class _NativeProject(torch.autograd.Function):
+    """Autograd wrapper of the native projection kernels; the camera is a constant."""
+
+    @staticmethod
+    def forward(ctx, means, scales, quats, camera_args):
+        native = native_module()
+        inputs = [t.detach().contiguous() for t in (means, scales, quats)]
+        n = means.shape[0]
+        outputs = [torch.empty(n, 2), torch.empty(n, 3), torch.empty(n),
+                   torch.empty(n, dtype=torch.int32), torch.empty(n, 3), torch.empty(n, 3, 3)]
+        native.project_forward(*(t.numpy() for t in inputs), *camera_args,
+                               *(t.numpy() for t in outputs))
+        ctx.camera_args = camera_args
+        ctx.save_for_backward(*inputs)
+        ctx.mark_non_differentiable(outputs[3])
+        return tuple(outputs)
+
+    @staticmethod
+    def backward(ctx, grad_means2d, grad_conics, grad_depths, _grad_radii, grad_means_camera,
+                 grad_rotations_camera):
+        native = native_module()
+        means, scales, quats = ctx.saved_tensors
+        n = means.shape[0]
+        upstream = [dense_grad(grad_means2d, (n, 2)), dense_grad(grad_conics, (n, 3)),
+                    dense_grad(grad_depths, (n,)), dense_grad(grad_means_camera, (n, 3)),
+                    dense_grad(grad_rotations_camera, (n, 3, 3))]
+        grads = [torch.empty_like(means), torch.empty_like(scales), torch.empty_like(quats)]
+        native.project_backward(means.numpy(), scales.numpy(), quats.numpy(), *ctx.camera_args,
+                                *(g.numpy() for g in upstream), *(g.numpy() for g in grads))
+        return (*grads, None)
+
+
+
+def _native_project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int,
+                    height: int, world_to_camera: Tensor, near: float,
+                    lowpass: float) -> Projection:
+    K = K.detach().double()
+    camera_args = (world_to_camera.detach().to(torch.float32).contiguous().numpy(),
+                   float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                   width, height, near, lowpass, FOV_CLAMP)
+    means2d, conics, depths, radii, means_camera, rotations_camera = _NativeProject.apply(
+        means, scales, quats, camera_args)
+    return Projection(means2d=means2d, conics=conics, depths=depths, radii=radii,
+                      means_camera=means_camera, rotations_camera=rotations_camera)
 
 
 def camera_ray_directions(K: Tensor, width: int, height: int) -> Tensor:

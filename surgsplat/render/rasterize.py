@@ -7,15 +7,11 @@ when it is built.
 
 from __future__ import annotations
 
-from typing import Literal
-
 import torch
 from torch import Tensor
 
-from surgsplat.render.native import native_module
+from surgsplat.render.native import Backend, dense_grad, native_module, resolve_backend
 from surgsplat.render.reference import rasterize_reference
-
-Backend = Literal["auto", "native", "reference"]
 
 
 class _NativeRasterize(torch.autograd.Function):
@@ -48,16 +44,13 @@ class _NativeRasterize(torch.autograd.Function):
         native.rasterize_backward(
             ctx.bins, means2d.numpy(), conics.numpy(), opacities.numpy(), features.numpy(),
             width, height, transmittance.numpy(), last_entry.numpy(),
-            _dense(grad_image, (height, width, features.shape[1])).numpy(),
-            _dense(grad_alpha, (height, width)).numpy(), *(g.numpy() for g in grads),
+            dense_grad(grad_image, (height, width, features.shape[1])).numpy(),
+            dense_grad(grad_alpha, (height, width)).numpy(), *(g.numpy() for g in grads),
             abs_grad.numpy())
         if ctx.absgrad is not None:
             ctx.absgrad += abs_grad.norm(dim=1)
         return (*grads, None, None, None, None, None)
 
-
-def _dense(grad: Tensor | None, shape: tuple[int, ...]) -> Tensor:
-    return torch.zeros(shape) if grad is None else grad.contiguous().to(torch.float32)
 
 
 def check_finite(**tensors: Tensor) -> None:
@@ -67,21 +60,6 @@ def check_finite(**tensors: Tensor) -> None:
         if not bool(torch.isfinite(tensor.sum())) and not bool(torch.isfinite(tensor).all()):
             bad = int((~torch.isfinite(tensor)).sum())
             raise ValueError(f"rasterize: {name} has {bad} non-finite (NaN or Inf) entries")
-
-
-def resolve_backend(backend: Backend, dtype: torch.dtype) -> Literal["native", "reference"]:
-    """The backend `auto` means here: native for float32 when built, else the reference."""
-    if backend == "reference":
-        return "reference"
-    if dtype != torch.float32:
-        if backend == "native":
-            raise ValueError(f"rasterize: the native backend takes float32, got {dtype}")
-        return "reference"
-    if native_module() is None:
-        if backend == "native":
-            raise RuntimeError("rasterize: the native module is not built")
-        return "reference"
-    return "native"
 
 
 def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
@@ -102,7 +80,7 @@ def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tens
         raise ValueError(f"rasterize: image size must be positive, got {width}x{height}")
     check_finite(means2d=means2d.detach(), conics=conics.detach(), opacities=opacities.detach(),
                  features=features.detach(), depths=depths.detach())
-    if resolve_backend(backend, features.dtype) == "reference":
+    if resolve_backend("rasterize", backend, [means2d, conics, opacities, features]) == "reference":
         return rasterize_reference(means2d, conics, opacities, features, depths, radii,
                                    width, height, absgrad)
     radii = radii.to(torch.int32)

@@ -56,7 +56,8 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
     planar_depth: also render normal and plane distance and the unbiased plane depth.
     background [3]: colour behind the Gaussians (black when None). absgrad [N]: see rasterize.
     """
-    projection = project(means, scales, quats, K, width, height, world_to_camera, near=near)
+    projection = project(means, scales, quats, K, width, height, world_to_camera, near=near,
+                         backend=backend)
     if sh_degree is None:
         rgb = colors
     else:

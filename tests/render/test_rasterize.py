@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from surgsplat.render import native as native_loader
-from surgsplat.render.rasterize import rasterize, resolve_backend
+from surgsplat.render.native import resolve_backend
+from surgsplat.render.rasterize import rasterize
 from surgsplat.render.reference import rasterize_reference
 
 needs_native = pytest.mark.skipif(native_loader.native_module() is None,
@@ -143,9 +144,9 @@ def test_missing_native_module_falls_back_with_one_warning(monkeypatch):
     monkeypatch.delattr(surgsplat.render, "_native", raising=False)
     try:
         with pytest.warns(RuntimeWarning, match="PyTorch reference"):
-            assert resolve_backend("auto", torch.float32) == "reference"
+            assert resolve_backend("rasterize", "auto", [torch.zeros(1)]) == "reference"
         with pytest.raises(RuntimeError, match="not built"):
-            resolve_backend("native", torch.float32)
+            resolve_backend("rasterize", "native", [torch.zeros(1)])
     finally:
         monkeypatch.undo()
         native_loader.native_module.cache_clear()
