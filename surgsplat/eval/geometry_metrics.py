@@ -22,6 +22,8 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
+from surgsplat.losses.depth import valid_depth_pixels
+
 FSCORE_THRESHOLD_MM = 1.0
 _CANDIDATES = 8  # nearest triangle centroids checked exactly before the exactness test
 _CHUNK = 1 << 20  # point-triangle pairs evaluated at once
@@ -184,13 +186,7 @@ def depth_rmse(pred_depth: Tensor, gt_depth: Tensor, tissue: Tensor) -> float:
 
     pred_depth, gt_depth: [H, W] in the scene's unit (mm for the phantom); tissue: bool [H, W].
     """
-    if pred_depth.shape != gt_depth.shape or pred_depth.dim() != 2:
-        raise ValueError(f"expected two depth maps of one shape [H, W], got "
-                         f"{tuple(pred_depth.shape)} and {tuple(gt_depth.shape)}")
-    if tissue.shape != gt_depth.shape or tissue.dtype != torch.bool:
-        raise ValueError(f"expected a bool tissue mask of shape {tuple(gt_depth.shape)}, got "
-                         f"{tissue.dtype} {tuple(tissue.shape)}")
-    valid = tissue & (gt_depth > 0)
+    valid = valid_depth_pixels(pred_depth, gt_depth, tissue)
     if not valid.any():
         raise ValueError("no tissue pixel has a positive ground-truth depth")
     error = pred_depth[valid].double() - gt_depth[valid].double()

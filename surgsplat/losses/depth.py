@@ -11,8 +11,9 @@ import torch
 from torch import Tensor
 
 
-def _valid(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
-    """[H, W] bool: masked pixels with a measured (positive) depth."""
+def valid_depth_pixels(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+    """[H, W] bool: masked pixels with a measured (positive) depth; ValueError when the depth
+    maps [H, W] and the bool mask [H, W] do not match."""
     if pred_depth.shape != gt.shape or pred_depth.dim() != 2:
         raise ValueError(f"expected two depth maps of one shape [H, W], got "
                          f"{tuple(pred_depth.shape)} and {tuple(gt.shape)}")
@@ -29,7 +30,7 @@ def _mean_over(errors: Tensor, valid: Tensor) -> Tensor:
 
 def depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     """Mean |pred - gt| (depth units) over masked pixels with gt > 0."""
-    valid = _valid(pred_depth, gt, mask)
+    valid = valid_depth_pixels(pred_depth, gt, mask)
     return _mean_over((pred_depth - gt).abs(), valid)
 
 
@@ -38,7 +39,7 @@ def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
 
     Pixels the render leaves at depth 0 (nothing drawn) have no inverse depth and are skipped.
     """
-    valid = _valid(pred_depth, gt, mask) & (pred_depth > 0)
+    valid = valid_depth_pixels(pred_depth, gt, mask) & (pred_depth > 0)
     # Invalid pixels get depth 1 before inverting, so that no inf or nan enters the graph.
     safe_pred = torch.where(valid, pred_depth, torch.ones_like(pred_depth))
     safe_gt = torch.where(valid, gt, torch.ones_like(gt))
