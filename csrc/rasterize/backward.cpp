@@ -67,6 +67,11 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
             }
             for (int32_t k = end - 1; k >= start; --k) {
                 const int32_t g = bins.ids[k];
+                if (k - kPrefetchAhead >= start) {
+                    const int32_t ahead = bins.ids[k - kPrefetchAhead];
+                    prefetch_splat(means2d, conics, opacities, features, channels, bins, ahead);
+                    __builtin_prefetch(mine + ahead * stride, 1);
+                }
                 const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
                 const float a = s.a, b = s.b, c = s.c, opacity = s.opacity;
                 const RowF dx = s.dx;

@@ -33,6 +33,9 @@ void rasterize_forward(const float* means2d, const float* conics, const float* o
             }
             for (int32_t k = start; k < end; ++k) {
                 const int32_t g = bins.ids[k];
+                if (k + kPrefetchAhead < end)
+                    prefetch_splat(means2d, conics, opacities, features, channels, bins,
+                                   bins.ids[k + kPrefetchAhead]);
                 const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
                 const float* feature = features + g * channels;
                 bool any_live = false;
