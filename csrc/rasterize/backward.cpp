@@ -88,7 +88,7 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                     const RowF raw = s.alpha(q);
                     const RowI in = (row_of(k) < last[row]) & (raw >= kAlphaMin) & (q >= 0.0f);
                     const RowF alpha = select(in, raw, row_of(0.0f));
-                    const RowF t_before = trans[row] / (1.0f - alpha);
+                    const RowF t_before = trans[row] * row_reciprocal(1.0f - alpha);
                     const RowF weight = alpha * t_before;
                     RowF d_colour{};
                     for (int64_t ch = 0; ch < channels; ++ch) {
