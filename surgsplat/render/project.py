@@ -58,8 +58,8 @@ def project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int,
     camera_fixed = not (K.requires_grad or world_to_camera.requires_grad)
     if backend == "native" and not camera_fixed:
         raise ValueError("project: the native backend takes a camera without gradients")
-    tensors = [means, scales, quats, K, world_to_camera]
-    if camera_fixed and resolve_backend("project", backend, tensors) == "native":
+    # The camera is read as float32 numbers, whatever its dtype: only the Gaussians decide.
+    if camera_fixed and resolve_backend("project", backend, [means, scales, quats]) == "native":
         return _native_project(means, scales, quats, K, width, height, world_to_camera, near,
                                lowpass)
     return project_reference(means, scales, quats, K, width, height, world_to_camera, near,
