@@ -144,7 +144,7 @@ class Component(nn.Module):
         """The Gaussians at `when` after this component (deform, change opacity or colour)."""
         return state
 
-    def render_channels(self, state: GaussianState, camera: Camera,
+    def render_channels(self, state: GaussianState, gaussians: GaussianModel, camera: Camera,
                         when: FrameTime) -> dict[str, Tensor]:
         """Per-Gaussian values [N] or [N, k] to alpha-blend into RenderOutput.extras."""
         return {}

@@ -49,7 +49,7 @@ class SplatModel(nn.Module):
         state = self.state_at(when)
         channels: dict[str, Tensor] = {}
         for name, component in self.components.items():
-            for key, value in component.render_channels(state, camera, when).items():
+            for key, value in component.render_channels(state, self.gaussians, camera, when).items():
                 if key in channels:
                     raise SurgsplatError(f"component {name!r} renders channel {key!r}, which "
                                          "another component already renders")

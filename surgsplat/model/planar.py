@@ -48,7 +48,8 @@ class PlanarGaussians(Component):
         super().__init__()
         self.config = config
 
-    def render_channels(self, state: GaussianState, camera, when: FrameTime) -> dict[str, Tensor]:
+    def render_channels(self, state: GaussianState, gaussians, camera,
+                        when: FrameTime) -> dict[str, Tensor]:
         normals, distances = planar_normals_and_distances(
             state.means, state.scales, state.quats, camera.world_to_camera)
         return {"normal": normals, "plane_distance": distances}
