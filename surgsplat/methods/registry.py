@@ -55,7 +55,7 @@ def endoplanar() -> MethodConfig:
         components={"deformation": GaussianBasisConfig(), "exposure": ExposureConfig(),
                     "planar": PlanarConfig(), "photometric": PhotometricConfig(),
                     "depth": DepthLossConfig(form="inverse_l1")},
-        losses={"photometric": LossWeight(1.0), "depth": LossWeight(5.0),
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(20.0),
                 "flatten": LossWeight(100.0), "normal": LossWeight(0.05, start_iter=500)},
         gaussians=GaussianConfig(init_thickness=0.01),
         init=InitConfig(fusion="mogf"))
