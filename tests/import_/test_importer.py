@@ -35,7 +35,7 @@ def test_video_with_masks_and_fov(video: Path, mask_folder: Path, tmp_path: Path
     assert ("import", FRAMES, FRAMES) in stages and stages[0][0] == "field of view"
     extra = json.loads((out / "scene.json").read_text())["extra"]
     assert extra["fov_mask"]["kind"] == "circle" and extra["masks"]["matched_by"] == "order"
-    assert "assumed" in extra["focal_source"]
+    assert "assumed" in extra["camera_source"]
 
 
 def test_range_stride_resize_without_fov(video: Path, tmp_path: Path):
