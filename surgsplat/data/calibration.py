@@ -7,9 +7,10 @@ The convention read (for each item, the first key found wins):
   convention of `surgsplat import --right`); its left 3x3 is the camera, and distortion is
   ignored (rectification removed it).
 - otherwise the camera matrix: `camera_matrix` (OpenCV's calibration sample), `K`, `M1`
-  (stereo_calib's left camera) or `cameraMatrix`, 3x3, with distortion coefficients
-  `distortion_coefficients`, `D`, `D1`, `dist_coeffs` or `distCoeffs`; non-zero distortion
-  is an error, because the frames must be undistorted for a pinhole camera.
+  (stereo_calib's left camera) or `cameraMatrix`, 3x3, with optional distortion coefficients
+  `distortion_coefficients`, `D`, `D1`, `dist_coeffs` or `distCoeffs` (OpenCV's order). When
+  they are not all zero the frames are undistorted on import (`undistortion_maps`) to the
+  pinhole camera of the same matrix, the camera written.
 - `image_width` and `image_height` (optional): the calibrated image size, checked against the
   frames.
 
@@ -48,6 +49,17 @@ class Calibration:
     """Calibrated (width, height) in pixels; None when the file does not say."""
     key: str
     """The key the camera was read from (e.g. "P1" or "camera_matrix")."""
+    distortion: np.ndarray | None
+    """OpenCV distortion coefficients [K] of the frames; None when they have none (all zero,
+    absent, or frames rectified with P1)."""
+
+    def undistortion_maps(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        """cv2.remap maps (x, y), each float32 [H, W], from the distorted frames to the pinhole
+        camera `intrinsics` (OpenCV's cv2.undistort with the same camera matrix)."""
+        matrix = self.intrinsics.matrix()
+        matrix[:2, 2] -= OPENCV_TO_SURGSPLAT_PX  # back to OpenCV's pixel convention
+        return cv2.initUndistortRectifyMap(matrix, self.distortion, None, matrix,
+                                           (width, height), cv2.CV_32FC1)
 
 
 def read_calibration(path: str | Path) -> Calibration:
@@ -62,13 +74,14 @@ def read_calibration(path: str | Path) -> Calibration:
     if not storage.isOpened():
         raise DataError(path, "cannot be opened as an OpenCV YAML/XML file")
     try:
+        distortion = None
         key, matrix = _first_matrix(storage, RECTIFIED_KEYS, (3, 4), path)
         if matrix is None:
             key, matrix = _first_matrix(storage, MATRIX_KEYS, (3, 3), path)
             if matrix is None:
                 raise DataError(path, f"holds no camera matrix: expected one of the keys "
                                       f"{', '.join(RECTIFIED_KEYS + MATRIX_KEYS)}")
-            _check_no_distortion(storage, path)
+            distortion = _distortion(storage, path)
         size = _image_size(storage, path)
     finally:
         storage.release()
@@ -82,7 +95,7 @@ def read_calibration(path: str | Path) -> Calibration:
         intrinsics.check(*(size or (None, None)))
     except ValueError as err:
         raise DataError(path, f"{key}: {err}") from None
-    return Calibration(intrinsics=intrinsics, size=size, key=key)
+    return Calibration(intrinsics=intrinsics, size=size, key=key, distortion=distortion)
 
 
 def _first_matrix(storage: cv2.FileStorage, keys: tuple[str, ...], shape: tuple[int, int],
@@ -103,18 +116,21 @@ def _first_matrix(storage: cv2.FileStorage, keys: tuple[str, ...], shape: tuple[
     return "", None
 
 
-def _check_no_distortion(storage: cv2.FileStorage, path: Path) -> None:
+def _distortion(storage: cv2.FileStorage, path: Path) -> np.ndarray | None:
+    """The first distortion coefficients found as float64 [K], or None if absent or all zero."""
     for key in DISTORTION_KEYS:
         node = storage.getNode(key)
         if node.empty():
             continue
         coefficients = node.mat()
-        if coefficients is not None and np.any(coefficients != 0):
-            raise DataError(path, f"{key} has non-zero distortion coefficients "
-                                  f"{coefficients.ravel().tolist()}: surgsplat needs undistorted "
-                                  "frames (e.g. cv2.undistort) and their camera matrix, or a "
-                                  "rectified camera P1")
-        return
+        if coefficients is None or coefficients.size not in (4, 5, 8, 12, 14):
+            raise DataError(path, f"{key} must hold 4, 5, 8, 12 or 14 distortion coefficients "
+                                  "(OpenCV's model)")
+        coefficients = coefficients.astype(np.float64).ravel()
+        if not np.isfinite(coefficients).all():
+            raise DataError(path, f"{key} holds NaN or infinite values")
+        return coefficients if np.any(coefficients != 0) else None
+    return None
 
 
 def _image_size(storage: cv2.FileStorage, path: Path) -> tuple[int, int] | None:

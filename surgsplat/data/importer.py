@@ -7,7 +7,8 @@ poses_bounds.npy (one static camera), and scene.json: the camera's full intrinsi
 cy of the written frames) and, under `extra`, the source, the frame selection, how the camera
 was obtained, the field of view and the stereo settings.
 
-The camera comes from --calibration (an OpenCV file, see `surgsplat.data.calibration`), from
+The camera comes from --calibration (an OpenCV file, see `surgsplat.data.calibration`; frames
+and masks are undistorted first when it gives distortion coefficients), from
 --fx/--fy and --cx/--cy, from --focal (square pixels), or from an assumed field of view; a
 principal point not given is the image centre. Given principal points follow OpenCV (pixel
 centres at integers) and are stored in surgsplat's convention (+ 0.5).
@@ -200,14 +201,19 @@ def import_scene(source: str | Path, out_dir: str | Path, config: ImportConfig,
 
 
 class _Fitter:
-    """Checks that frames and masks have the source size and resizes them to the output size."""
+    """Checks that frames and masks have the source size, undistorts them (given cv2.remap
+    maps) and resizes them to the output size."""
 
-    def __init__(self, source_size: tuple[int, int], out_size: tuple[int, int]):
+    def __init__(self, source_size: tuple[int, int], out_size: tuple[int, int],
+                 undistort: tuple[np.ndarray, np.ndarray] | None = None):
         self.source_size = source_size  # (H, W)
         self.out_size = out_size  # (H, W)
+        self.undistort = undistort  # (map x, map y), each float32 [H, W] at the source size
 
     def __call__(self, image: np.ndarray, path: Path, label: str) -> np.ndarray:
         self._check(image.shape, path, label)
+        if self.undistort is not None:
+            image = cv2.remap(image, *self.undistort, cv2.INTER_LINEAR)
         if self.out_size == self.source_size:
             return image
         shrink = self.out_size[1] < self.source_size[1]
@@ -216,6 +222,9 @@ class _Fitter:
 
     def mask(self, tool: np.ndarray, path: Path) -> np.ndarray:
         self._check(tool.shape, path, "mask")
+        if self.undistort is not None:
+            tool = cv2.remap(tool.astype(np.uint8), *self.undistort,
+                             cv2.INTER_NEAREST).astype(bool)
         if self.out_size == self.source_size:
             return tool
         return cv2.resize(tool.astype(np.uint8), self.out_size[::-1],
@@ -265,8 +274,8 @@ def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
     _, first = next(frames.read(selected[:1]))
     source_size = first.shape[:2]  # (H, W)
     out_size = _output_size(source_size, config)
-    intrinsics, camera_note = _intrinsics(source_size, out_size, config)
-    fit = _Fitter(source_size, out_size)
+    intrinsics, camera_note, undistort = _camera(source_size, out_size, config)
+    fit = _Fitter(source_size, out_size, undistort)
     fov = _find_fov(frames, selected, fit, config.fov, report) if config.fov_mask else None
     return _Plan(frames, right, selected, dropped, mask_of, fit, intrinsics, camera_note, fov)
 
@@ -353,10 +362,12 @@ def _output_size(source_size: tuple[int, int], config: ImportConfig) -> tuple[in
     return out_h, out_w
 
 
-def _intrinsics(source_size: tuple[int, int], out_size: tuple[int, int],
-                config: ImportConfig) -> tuple[Intrinsics, str]:
-    """The camera at the output size, and how it was obtained."""
+def _camera(source_size: tuple[int, int], out_size: tuple[int, int], config: ImportConfig
+            ) -> tuple[Intrinsics, str, tuple[np.ndarray, np.ndarray] | None]:
+    """The camera at the output size, how it was obtained, and the cv2.remap maps that
+    undistort the source frames (None when they need none)."""
     source_height, source_width = source_size
+    undistort = None
     if config.calibration is not None:
         calibration = read_calibration(config.calibration)
         if calibration.size not in (None, (source_width, source_height)):
@@ -365,6 +376,13 @@ def _intrinsics(source_size: tuple[int, int], out_size: tuple[int, int],
                                                 f"frames are {source_width}x{source_height}")
         intrinsics = calibration.intrinsics
         note = f"calibration: {calibration.key} of {config.calibration.resolve()}"
+        if calibration.distortion is not None:
+            if config.right is not None:
+                raise DataError(config.calibration, "gives distortion but no rectified camera "
+                                                    "P1: stereo needs rectified frames "
+                                                    "(cv2.stereoRectify)")
+            undistort = calibration.undistortion_maps(source_width, source_height)
+            note += f"; frames undistorted ({calibration.distortion.tolist()})"
     else:
         if config.fx is not None:
             fx, fy, note = config.fx, config.fy, "given: --fx, --fy"
@@ -387,7 +405,8 @@ def _intrinsics(source_size: tuple[int, int], out_size: tuple[int, int],
         raise SurgsplatError(f"camera of the {source_width}x{source_height} source frames: "
                              f"{err}") from None
     note += f" (source size {source_width}x{source_height})"
-    return intrinsics.scaled(out_size[1] / source_width, out_size[0] / source_height), note
+    scaled = intrinsics.scaled(out_size[1] / source_width, out_size[0] / source_height)
+    return scaled, note, undistort
 
 
 def _find_fov(frames: FrameSource, selected: list[int], fit: _Fitter, config: FovConfig,

@@ -89,7 +89,7 @@ def test_calibration_file_rectified_stereo_camera(frames: Path, tmp_path: Path):
     ({"K": np.eye(2)}, "K must be a 3x3 matrix"),
     ({"M1": np.array([[0.0, 0, 40], [0, 40, 30], [0, 0, 1]])}, "must be positive"),
     ({"M1": np.array([[40.0, 0, 40], [0, 40, 30], [0, 0, 1]]),
-      "D1": np.array([[0.1, 0, 0, 0, 0]])}, "non-zero distortion"),
+      "D1": np.array([[0.1, 0, 0]])}, "D1 must hold 4, 5, 8, 12 or 14"),
     ({"camera_matrix": np.array([[40.0, 0, 40], [0, 40, 30], [0, 0, 1]]),
       "image_width": 2 * WIDTH, "image_height": 2 * HEIGHT}, "is for 192x128 (WxH) images"),
 ])
@@ -100,6 +100,50 @@ def test_bad_calibration_files_are_named(frames: Path, tmp_path: Path, entries: 
         import_scene(frames, tmp_path / "s", ImportConfig(calibration=calibration))
     assert info.value.path == calibration
     assert not (tmp_path / "s").exists()
+
+
+def smooth_pattern(height: int, width: int) -> np.ndarray:
+    """uint8 [H, W, 3]: smooth waves (periods of 9-15 px), so that resampling is accurate."""
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    waves = [np.sin(xs / 2.1 + ys / 3.3), np.sin(ys / 1.6 - xs / 4.0), np.cos((xs + ys) / 2.4)]
+    return np.stack([np.rint(127.5 + 100 * w) for w in waves], axis=-1).astype(np.uint8)
+
+
+def test_distorted_frames_are_undistorted_to_the_camera_matrix(tmp_path: Path):
+    """Frames seen through barrel distortion come out as the ideal pinhole image of the same
+    camera matrix, and the tool mask moves with them."""
+    matrix, distortion = camera_matrix(), np.array([-0.25, 0.08, 0.001, -0.002, 0.0])
+    ideal = smooth_pattern(HEIGHT, WIDTH)
+    ideal_tool = np.zeros((HEIGHT, WIDTH), bool)
+    ideal_tool[8:20, 60:85] = True  # a box near the edge, where distortion moves it most
+    # Distort: pixel p of the source shows the ideal image at p undistorted (OpenCV pixels).
+    ys, xs = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
+    where = cv2.undistortPoints(np.stack([xs, ys], -1).reshape(-1, 1, 2), matrix, distortion,
+                                P=matrix).reshape(HEIGHT, WIDTH, 2).astype(np.float32)
+    source = cv2.remap(ideal, where[..., 0], where[..., 1], cv2.INTER_LINEAR)
+    source_tool = cv2.remap(ideal_tool.astype(np.uint8), where[..., 0], where[..., 1],
+                            cv2.INTER_NEAREST).astype(bool)
+    frames, masks = tmp_path / "frames", tmp_path / "masks"
+    frames.mkdir()
+    masks.mkdir()
+    cv2.imwrite(str(frames / "0.png"), source[..., ::-1])
+    cv2.imwrite(str(masks / "0.png"), source_tool.astype(np.uint8) * 255)
+    calibration = write_calibration(tmp_path / "calib.yml", camera_matrix=matrix,
+                                    distortion_coefficients=distortion[None])
+    out = import_scene(frames, tmp_path / "s", ImportConfig(calibration=calibration, masks=masks,
+                                                            fov_mask=False))
+    frame = load_scene(out).frames[0]
+    np.testing.assert_allclose(camera_of(out), (FX, FY, CX_CV + 0.5, CY_CV + 0.5), rtol=1e-6)
+    inner = (slice(6, HEIGHT - 6), slice(6, WIDTH - 6))  # away from the corners left empty
+    undistorted = frame.image.numpy()[inner] * 255
+    error = np.abs(undistorted - ideal[inner]).mean()
+    before = np.abs(source[inner].astype(float) - ideal[inner]).mean()
+    assert error < 6.0 and before > 8 * error, (error, before)  # grey levels of 255 (4.3, 57)
+    tool = frame.tool.numpy()
+    assert (tool & ideal_tool).sum() / (tool | ideal_tool).sum() > 0.9  # IoU
+    stereo = ImportConfig(calibration=calibration, right=frames, disparity_only=True)
+    with pytest.raises(DataError, match="stereo needs rectified frames"):
+        import_scene(frames, tmp_path / "t", stereo)
 
 
 def test_unparsable_or_missing_calibration_file(frames: Path, tmp_path: Path):
