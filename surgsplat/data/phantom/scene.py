@@ -79,8 +79,8 @@ class PhantomScene:
         return self.camera_path.world_to_camera(self.time(index))
 
     def tool_pose(self, t: float) -> ToolPose:
-        """The tool at time t in the world: its shaft points from the trocar at the tissue point it works
-        at, slid back along itself by the motion's insertion."""
+        """The tool at time t in the world: its shaft points from the trocar at the tissue
+        point it works at, slid back along itself by the motion's insertion."""
         anchor = self.surface.anchor(t)
         back = self.trocar - anchor
         back /= np.linalg.norm(back)
