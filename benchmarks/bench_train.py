@@ -42,7 +42,7 @@ def test_psnr(trainer: Trainer) -> float:
     """Mean psnr_tissue over the test frames, rendered now."""
     values = []
     for frame in trainer.scene.test_frames:
-        out = render_frame(trainer.model, trainer.scene.camera, FrameTime(frame.index, frame.time),
+        out = render_frame(trainer.model, frame.camera, FrameTime(frame.index, frame.time),
                            trainer.background)
         values.append(psnr_tissue(out.rgb.clamp(0, 1), frame.image, frame.tissue))
     return sum(values) / len(values)

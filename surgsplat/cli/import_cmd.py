@@ -60,14 +60,28 @@ def import_command(
     allow_missing_masks: Annotated[bool, typer.Option(
         help="Drop frames that have no mask (default: stop with an error).")] = False,
     fov_mask: Annotated[bool, typer.Option(
-        help="Find the circular field of view (black border) and mask what lies outside "
-             "it.")] = True,
+        help="Find the circular field of view (black border) and write it to fov_mask.png, "
+             "apart from the tool masks.")] = True,
     right: Annotated[Path | None, typer.Option(
         help="Right-camera video or folder of a stereo pair. Both cameras must be RECTIFIED "
              "(corresponding points on the same row); depth = focal x baseline / "
              "disparity.")] = None,
     focal: Annotated[float | None, typer.Option(
-        help="Focal length in pixels of the source frames. Default: guessed from --hfov.")] = None,
+        help="Focal length in pixels of the source frames (square pixels). Default: --fx/--fy, "
+             "--calibration, or guessed from --hfov.")] = None,
+    fx: Annotated[float | None, typer.Option(
+        help="Focal length along columns, pixels of the source frames (with --fy).")] = None,
+    fy: Annotated[float | None, typer.Option(
+        help="Focal length along rows, pixels of the source frames (with --fx).")] = None,
+    cx: Annotated[float | None, typer.Option(
+        help="Principal point column of the source frames, OpenCV convention (pixel centres "
+             "at integers), with --cy. Default: the image centre.")] = None,
+    cy: Annotated[float | None, typer.Option(
+        help="Principal point row of the source frames, OpenCV convention, with --cx.")] = None,
+    calibration: Annotated[Path | None, typer.Option(
+        help="OpenCV calibration file (YAML/XML from cv2.FileStorage) of the source frames: "
+             "P1 (rectified left camera) or camera_matrix / K / M1 with zero distortion; "
+             "image_width / image_height are checked.")] = None,
     hfov: Annotated[float, typer.Option(
         help="Horizontal field of view (degrees) assumed when --focal is not given.")] = 70.0,
     baseline: Annotated[float | None, typer.Option(
@@ -94,6 +108,7 @@ def import_command(
         allow_missing_masks=allow_missing_masks, fov_mask=fov_mask, right=right,
         baseline=baseline, disparity_only=disparity_only, depth_unit=depth_unit,
         stereo=StereoConfig(num_disparities=num_disparities, mode=stereo_mode), focal=focal,
+        fx=fx, fy=fy, cx=cx, cy=cy, calibration=calibration,
         assumed_hfov_deg=hfov, start=start, end=end, stride=stride, resize=parse_size(resize),
         scale=scale)
     with progress_bar() as bar:
@@ -118,7 +133,7 @@ def print_import_table(scene_dir: Path) -> None:
     table.add_row("written", f"{len(extra['source_frames'])} frames "
                              f"({extra['source_frames'][0]} .. {extra['source_frames'][-1]}), "
                              f"{len(extra['dropped_without_mask'])} dropped without a mask")
-    table.add_row("focal", f"{extra['focal_px']:.2f} px; {extra['focal_source']}")
+    table.add_row("camera", extra["camera_source"])
     fov = extra["fov_mask"]
     table.add_row("field of view", fov if isinstance(fov, str) else
                   f"{fov['kind']}, {100 * fov['inside_share']:.1f}% of pixels inside")

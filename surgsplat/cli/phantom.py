@@ -11,6 +11,7 @@ from rich.console import Console
 
 from surgsplat.cli.info import print_summary_table
 from surgsplat.cli.progress import progress_bar
+from surgsplat.data.phantom.camera_path import CAMERAS
 from surgsplat.data.phantom.generate import (PRESETS, PhantomConfig, check_phantom_request,
                                              generate_phantom)
 from surgsplat.data.phantom.motion import MOTIONS
@@ -20,16 +21,20 @@ def phantom_command(
     out: Annotated[Path, typer.Option(help="New (or empty) folder to write the scene to.")],
     preset: Annotated[str, typer.Option(help=f"Size: {', '.join(PRESETS)}.")] = "small",
     motion: Annotated[str, typer.Option(help=f"Tissue motion: {', '.join(MOTIONS)}.")] = "pulling",
+    camera: Annotated[str, typer.Option(
+        help=f"Endoscope: {', '.join(CAMERAS)} (moving: translates a few mm and turns a few "
+             "degrees; poses in poses_bounds.npy and gt/camera_poses.npy).")] = "static",
     seed: Annotated[int, typer.Option(help="Seed of texture, shape and tool path.")] = 0,
     frames: Annotated[int | None, typer.Option(help="Number of frames (preset default if "
                                                      "omitted).")] = None,
 ) -> None:
     """Ray-cast a synthetic deforming tissue with a tool, with ground truth under gt/."""
     start = time.perf_counter()
-    config = PhantomConfig(preset=preset, motion=motion, seed=seed, num_frames=frames)
+    config = PhantomConfig(preset=preset, motion=motion, camera=camera, seed=seed,
+                           num_frames=frames)
     _, num_frames = check_phantom_request(config, out)
     with progress_bar() as bar:
-        task = bar.add_task(f"phantom {preset} {motion}", total=num_frames)
+        task = bar.add_task(f"phantom {preset} {motion} {camera}", total=num_frames)
 
         def report(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)

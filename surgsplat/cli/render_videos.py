@@ -26,7 +26,7 @@ def depth_range(run: TrainedRun) -> tuple[float, float]:
     if run.scene.has_depth:
         values = torch.cat([f.depth[f.depth > 0][::97] for f in run.scene.frames])
     else:
-        out = render_frame(run.model, run.scene.camera, FrameTime(0, 0.0))
+        out = render_frame(run.model, run.scene.frames[0].camera, FrameTime(0, 0.0))
         values = out.depth[out.alpha > 0.5]
     if values.numel() == 0:
         return 0.0, 1.0
@@ -42,7 +42,7 @@ def write_run_videos(run: TrainedRun, out_dir: Path, fps: float) -> list[Path]:
     with progress_bar() as bar:
         task = bar.add_task("render", total=len(frames))
         for frame in frames:
-            camera = run.scene.camera
+            camera = frame.camera
             out = render_frame(run.model, camera, FrameTime(frame.index, frame.time), background)
             rgb = to_uint8(out.rgb.numpy())
             depth = colorize_depth(out.depth.numpy(), near, far)

@@ -1,14 +1,21 @@
 """Import endoscopic video (or a folder of frames) as an EndoNeRF-layout scene folder.
 
-What is written (see `surgsplat.data.layout`): images/ (RGB PNG), masks/ (255 = tool or outside
-the circular field of view) when masks are given or a dark border is found, depth/ (16-bit PNG,
-depth in the baseline's unit) when a right camera is given, poses_bounds.npy (one static
-camera) and scene.json (the source, the frame selection, how the focal length was obtained,
-the field of view and the stereo settings, under `extra`).
+What is written (see `surgsplat.data.layout`): images/ (RGB PNG), masks/ (255 = tool) when
+masks are given, fov_mask.png (255 = inside the circular field of view) when a dark border is
+found, depth/ (16-bit PNG, depth in the baseline's unit) when a right camera is given,
+poses_bounds.npy (one static camera), and scene.json: the camera's full intrinsics (fx, fy, cx,
+cy of the written frames) and, under `extra`, the source, the frame selection, how the camera
+was obtained, the field of view and the stereo settings.
+
+The camera comes from --calibration (an OpenCV file, see `surgsplat.data.calibration`; frames
+and masks are undistorted first when it gives distortion coefficients), from
+--fx/--fy and --cx/--cy, from --focal (square pixels), or from an assumed field of view; a
+principal point not given is the image centre. Given principal points follow OpenCV (pixel
+centres at integers) and are stored in surgsplat's convention (+ 0.5).
 
 Frames come in this order: frame range and stride on the source's frames, then frames without
 a mask are dropped (only if allowed), then every frame is resized. Stereo runs on the resized,
-rectified pair; the focal length is scaled with the image width.
+rectified pair; fx and cx scale with the image width, fy and cy with its height.
 """
 
 from __future__ import annotations
@@ -22,9 +29,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from surgsplat.data.calibration import read_calibration
 from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
 from surgsplat.data.frames_source import FrameSource, list_frame_files
-from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem
+from surgsplat.data.layout import Intrinsics, SceneMeta, SceneWriter, frame_stem
 from surgsplat.data.stereo import StereoConfig, disparity_to_depth, stereo_disparity
 from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
 from surgsplat.errors import DataError, SurgsplatError
@@ -36,7 +44,7 @@ DISPARITY_STEPS = 256
 """Stored integer steps per pixel of disparity (the KITTI convention)."""
 MIN_DEPTH_DISPARITY = 1.0
 """Disparities below this (px) are too far to give a usable depth and are stored as 0 (unknown);
-the deepest stored depth is therefore focal x baseline."""
+the deepest stored depth is therefore fx x baseline."""
 FOV_SAMPLE_FRAMES = 100
 """The field of view is estimated on at most this many of the selected frames, evenly spread."""
 
@@ -62,7 +70,7 @@ class ImportConfig:
     allow_missing_masks: bool = False
     """Drop frames that have no mask instead of stopping with an error."""
     fov_mask: bool = True
-    """Find the circular field of view and mark pixels outside it as not tissue (255 in masks/)."""
+    """Find the circular field of view and write it to fov_mask.png (apart from the tool masks)."""
     fov: FovConfig = field(default_factory=FovConfig)
     """How the field of view is found."""
     right: Path | None = None
@@ -76,7 +84,19 @@ class ImportConfig:
     stereo: StereoConfig = field(default_factory=StereoConfig)
     """Stereo matcher parameters."""
     focal: float | None = None
-    """Focal length in pixels of the source frames; None = guessed from `assumed_hfov_deg`."""
+    """Focal length in pixels of the source frames (fx = fy); None = fx, fy, the calibration
+    file or `assumed_hfov_deg`."""
+    fx: float | None = None
+    """Focal length along columns, pixels of the source frames; given together with fy."""
+    fy: float | None = None
+    """Focal length along rows, pixels of the source frames; given together with fx."""
+    cx: float | None = None
+    """Principal point column in the source frames, OpenCV convention (pixel centres at
+    integers); given together with cy; None = the image centre."""
+    cy: float | None = None
+    """Principal point row in the source frames, OpenCV convention; given together with cx."""
+    calibration: Path | None = None
+    """OpenCV calibration file (YAML/XML) of the source frames' camera, instead of the above."""
     assumed_hfov_deg: float = 70.0
     """Horizontal field of view (degrees) assumed when `focal` is not given."""
     start: int = 0
@@ -103,8 +123,7 @@ class ImportConfig:
             raise SurgsplatError(f"--resize needs a positive width and height, got {self.resize}")
         if self.scale is not None and self.scale <= 0:
             raise SurgsplatError(f"--scale must be positive, got {self.scale}")
-        if self.focal is not None and self.focal <= 0:
-            raise SurgsplatError(f"--focal must be positive (pixels), got {self.focal}")
+        self._validate_camera()
         if not 0 < self.assumed_hfov_deg < 180:
             raise SurgsplatError(f"the assumed field of view must be in (0, 180) degrees, got "
                                  f"{self.assumed_hfov_deg}")
@@ -117,6 +136,25 @@ class ImportConfig:
             raise SurgsplatError(f"--tool-labels must list class IDs in 0..65535, got "
                                  f"{self.tool_labels}")
         self._validate_stereo()
+
+    def _validate_camera(self) -> None:
+        given = {name: getattr(self, name) for name in ("focal", "fx", "fy", "cx", "cy")}
+        if self.calibration is not None and any(v is not None for v in given.values()):
+            raise SurgsplatError("give either --calibration or --focal / --fx --fy / --cx --cy, "
+                                 "not both")
+        if self.focal is not None and (self.fx is not None or self.fy is not None):
+            raise SurgsplatError("give either --focal or --fx and --fy, not both")
+        for first, second in (("fx", "fy"), ("cx", "cy")):
+            if (given[first] is None) != (given[second] is None):
+                raise SurgsplatError(f"--{first} and --{second} go together: give both")
+        for name in ("focal", "fx", "fy"):
+            if given[name] is not None and not given[name] > 0:
+                raise SurgsplatError(f"--{name} must be positive (pixels), got {given[name]}")
+
+    @property
+    def knows_focal(self) -> bool:
+        """Whether the focal length is given rather than assumed."""
+        return self.focal is not None or self.fx is not None or self.calibration is not None
 
     def _validate_stereo(self) -> None:
         if self.right is None:
@@ -131,9 +169,10 @@ class ImportConfig:
                                      f"1/{DISPARITY_STEPS} px; search at most "
                                      f"{65535 // DISPARITY_STEPS} px")
             return
-        if self.baseline is None or self.baseline <= 0 or self.focal is None:
-            raise SurgsplatError("depth from stereo needs --focal (px, of the rectified left "
-                                 "camera) and a positive --baseline; or pass --disparity-only")
+        if self.baseline is None or self.baseline <= 0 or not self.knows_focal:
+            raise SurgsplatError("depth from stereo needs --focal, --fx/--fy or --calibration "
+                                 "(of the rectified left camera) and a positive --baseline; or "
+                                 "pass --disparity-only")
 
 
 def import_scene(source: str | Path, out_dir: str | Path, config: ImportConfig,
@@ -162,14 +201,19 @@ def import_scene(source: str | Path, out_dir: str | Path, config: ImportConfig,
 
 
 class _Fitter:
-    """Checks that frames and masks have the source size and resizes them to the output size."""
+    """Checks that frames and masks have the source size, undistorts them (given cv2.remap
+    maps) and resizes them to the output size."""
 
-    def __init__(self, source_size: tuple[int, int], out_size: tuple[int, int]):
+    def __init__(self, source_size: tuple[int, int], out_size: tuple[int, int],
+                 undistort: tuple[np.ndarray, np.ndarray] | None = None):
         self.source_size = source_size  # (H, W)
         self.out_size = out_size  # (H, W)
+        self.undistort = undistort  # (map x, map y), each float32 [H, W] at the source size
 
     def __call__(self, image: np.ndarray, path: Path, label: str) -> np.ndarray:
         self._check(image.shape, path, label)
+        if self.undistort is not None:
+            image = cv2.remap(image, *self.undistort, cv2.INTER_LINEAR)
         if self.out_size == self.source_size:
             return image
         shrink = self.out_size[1] < self.source_size[1]
@@ -178,6 +222,9 @@ class _Fitter:
 
     def mask(self, tool: np.ndarray, path: Path) -> np.ndarray:
         self._check(tool.shape, path, "mask")
+        if self.undistort is not None:
+            tool = cv2.remap(tool.astype(np.uint8), *self.undistort,
+                             cv2.INTER_NEAREST).astype(bool)
         if self.out_size == self.source_size:
             return tool
         return cv2.resize(tool.astype(np.uint8), self.out_size[::-1],
@@ -199,8 +246,8 @@ class _Plan:
     dropped: list[int]  # selected source frames dropped for lack of a mask
     mask_of: list[Path | None] | None  # mask file of each source frame; None = no masks
     fit: _Fitter
-    focal: float  # px at the output size
-    focal_note: str
+    intrinsics: Intrinsics  # at the output size
+    camera_note: str  # how the intrinsics were obtained
     fov: FovEstimate | None  # None = not searched
 
 
@@ -227,23 +274,27 @@ def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
     _, first = next(frames.read(selected[:1]))
     source_size = first.shape[:2]  # (H, W)
     out_size = _output_size(source_size, config)
-    focal, focal_note = _focal(source_size, out_size, config)
-    fit = _Fitter(source_size, out_size)
+    intrinsics, camera_note, undistort = _camera(source_size, out_size, config)
+    fit = _Fitter(source_size, out_size, undistort)
     fov = _find_fov(frames, selected, fit, config.fov, report) if config.fov_mask else None
-    return _Plan(frames, right, selected, dropped, mask_of, fit, focal, focal_note, fov)
+    return _Plan(frames, right, selected, dropped, mask_of, fit, intrinsics, camera_note, fov)
 
 
 def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progress) -> Path:
-    """Write the selected frames, masks and depth (or disparity), then the camera and scene.json."""
+    """Write the selected frames, tool masks, field of view and depth (or disparity), then the
+    camera and scene.json."""
     frames, right, fit = plan.frames, plan.right, plan.fit
-    outside = None if plan.fov is None or plan.fov.kind == "full" else ~plan.fov.inside  # [H, W]
-    meta = SceneMeta(depth_unit="unknown", source=str(frames.path.resolve()))
+    fx = plan.intrinsics.fx
+    meta = SceneMeta(depth_unit="unknown", intrinsics=plan.intrinsics,
+                     source=str(frames.path.resolve()))
     depth_scale = 0.01
     if right is not None and not config.disparity_only:
         meta.depth_unit = config.depth_unit
-        # 16-bit range spans depths up to focal x baseline (disparity MIN_DEPTH_DISPARITY px).
-        depth_scale = plan.focal * config.baseline / MIN_DEPTH_DISPARITY / 65535
-    writer = SceneWriter(out_dir, plan.focal, meta, depth_scale=depth_scale)
+        # 16-bit range spans depths up to fx x baseline (disparity MIN_DEPTH_DISPARITY px).
+        depth_scale = fx * config.baseline / MIN_DEPTH_DISPARITY / 65535
+    writer = SceneWriter(out_dir, fx, meta, depth_scale=depth_scale)
+    if plan.fov is not None and plan.fov.kind != "full":
+        writer.set_fov(plan.fov.inside)
     if config.disparity_only:
         (out_dir / DISPARITY_DIR).mkdir()
     pairs = _read_pairs(frames, right, plan.selected)
@@ -253,8 +304,6 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         if plan.mask_of is not None:
             mask_path = plan.mask_of[index]
             tool = fit.mask(read_tool_labels(mask_path, config.tool_labels), mask_path)
-        if outside is not None:
-            tool = outside if tool is None else tool | outside
         depth = None
         if right is not None:
             right_image = fit(right_image, right.frame_path(index), right.frame_label(index))
@@ -265,7 +314,7 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
                 cv2.imwrite(str(disparity_path), stored)
             else:
                 disparity[disparity < MIN_DEPTH_DISPARITY] = 0.0
-                depth = disparity_to_depth(disparity, plan.focal, config.baseline)
+                depth = disparity_to_depth(disparity, fx, config.baseline)
         writer.add_frame(image, depth, tool)
         report("import", done, len(plan.selected))
     meta.extra = _provenance(plan, config)
@@ -308,22 +357,56 @@ def _output_size(source_size: tuple[int, int], config: ImportConfig) -> tuple[in
     out_w, out_h = config.resize
     if abs((out_w / out_h) / (width / height) - 1) > 0.01:
         raise SurgsplatError(f"--resize {out_w}x{out_h} changes the aspect ratio of the "
-                             f"{width}x{height} frames; the scene holds one focal length, so "
-                             "keep the ratio (e.g. use --scale)")
+                             f"{width}x{height} frames, which would stretch them; keep the "
+                             "ratio (e.g. use --scale)")
     return out_h, out_w
 
 
-def _focal(source_size: tuple[int, int], out_size: tuple[int, int],
-           config: ImportConfig) -> tuple[float, str]:
-    """Focal length in output pixels, and how it was obtained."""
-    source_width = source_size[1]
-    if config.focal is not None:
-        focal, note = config.focal, f"given: {config.focal:g} px at width {source_width}"
+def _camera(source_size: tuple[int, int], out_size: tuple[int, int], config: ImportConfig
+            ) -> tuple[Intrinsics, str, tuple[np.ndarray, np.ndarray] | None]:
+    """The camera at the output size, how it was obtained, and the cv2.remap maps that
+    undistort the source frames (None when they need none)."""
+    source_height, source_width = source_size
+    undistort = None
+    if config.calibration is not None:
+        calibration = read_calibration(config.calibration)
+        if calibration.size not in (None, (source_width, source_height)):
+            raise DataError(config.calibration, f"is for {calibration.size[0]}x"
+                                                f"{calibration.size[1]} (WxH) images but the "
+                                                f"frames are {source_width}x{source_height}")
+        intrinsics = calibration.intrinsics
+        note = f"calibration: {calibration.key} of {config.calibration.resolve()}"
+        if calibration.distortion is not None:
+            if config.right is not None:
+                raise DataError(config.calibration, "gives distortion but no rectified camera "
+                                                    "P1: stereo needs rectified frames "
+                                                    "(cv2.stereoRectify)")
+            undistort = calibration.undistortion_maps(source_width, source_height)
+            note += f"; frames undistorted ({calibration.distortion.tolist()})"
     else:
-        focal = source_width / 2 / math.tan(math.radians(config.assumed_hfov_deg) / 2)
-        note = (f"assumed: {config.assumed_hfov_deg:g} degree horizontal field of view "
-                "(pass --focal for the real value)")
-    return focal * out_size[1] / source_width, note
+        if config.fx is not None:
+            fx, fy, note = config.fx, config.fy, "given: --fx, --fy"
+        elif config.focal is not None:
+            fx = fy = config.focal
+            note = "given: --focal"
+        else:
+            fx = fy = source_width / 2 / math.tan(math.radians(config.assumed_hfov_deg) / 2)
+            note = (f"assumed: {config.assumed_hfov_deg:g} degree horizontal field of view "
+                    "(pass --focal, --fx/--fy or --calibration for the real value)")
+        if config.cx is not None:
+            intrinsics = Intrinsics(fx, fy, config.cx + 0.5, config.cy + 0.5)
+            note += "; principal point given (--cx, --cy)"
+        else:
+            intrinsics = Intrinsics(fx, fy, source_width / 2.0, source_height / 2.0)
+            note += "; principal point at the image centre"
+    try:
+        intrinsics.check(source_width, source_height)
+    except ValueError as err:
+        raise SurgsplatError(f"camera of the {source_width}x{source_height} source frames: "
+                             f"{err}") from None
+    note += f" (source size {source_width}x{source_height})"
+    scaled = intrinsics.scaled(out_size[1] / source_width, out_size[0] / source_height)
+    return scaled, note, undistort
 
 
 def _find_fov(frames: FrameSource, selected: list[int], fit: _Fitter, config: FovConfig,
@@ -362,8 +445,8 @@ def _provenance(plan: _Plan, config: ImportConfig) -> dict:
         "dropped_without_mask": [frames.frame_label(i) for i in plan.dropped],
         "source_size_wh": [source_w, source_h],
         "size_wh": [out_w, out_h],
-        "focal_px": plan.focal,
-        "focal_source": plan.focal_note,
+        "focal_px": plan.intrinsics.fx,
+        "camera_source": plan.camera_note,
         "fov_mask": plan.fov.describe() if plan.fov is not None else "off",
     }
     if config.masks is not None:

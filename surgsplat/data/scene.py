@@ -1,12 +1,15 @@
 """Load and validate an EndoNeRF-layout scene folder (see `surgsplat.data.layout`).
 
 Every problem with the files is reported as a DataError naming the file and what was expected,
-before any training starts.
+before any training starts. Each frame carries its own camera (intrinsics from scene.json or
+the hwf column, pose from poses_bounds.npy converted from LLFF to OpenCV world-to-camera) and
+its tool and field-of-view masks.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -14,28 +17,61 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from surgsplat.data.layout import (DEPTH_DIR, DEPTH_SUFFIXES, IMAGE_SUFFIXES, IMAGES_DIR,
-                                   MASKS_DIR, META_FILE, POSES_FILE, TOOL_VALUE, SceneMeta,
-                                   list_files)
+from surgsplat.data.layout import (DEPTH_DIR, DEPTH_SUFFIXES, FOV_FILE, IMAGE_SUFFIXES,
+                                   IMAGES_DIR, INSIDE_VALUE, MASKS_DIR, META_FILE, POSES_FILE,
+                                   TOOL_VALUE, Intrinsics, SceneMeta, list_files,
+                                   world_to_camera_from_llff)
 from surgsplat.errors import DataError
 
 TEST_EVERY = 8
 """Test frames are those with index % TEST_EVERY == TEST_OFFSET (the EndoNeRF-family split)."""
 TEST_OFFSET = 1
+ROTATION_TOLERANCE = 1e-3
+"""Largest |R^T R - I| entry of a pose's rotation block accepted as a rotation."""
+FOCAL_TOLERANCE = 1e-3
+"""Largest relative difference between the hwf focal and scene.json's fx."""
 
 
 @dataclass(frozen=True)
 class Camera:
-    """A pinhole camera in OpenCV convention (x right, y down, z forward)."""
+    """A pinhole camera in OpenCV convention (x right, y down, z forward); pixel (u, v) has its
+    centre at (u + 0.5, v + 0.5)."""
 
-    K: Tensor  # [3, 3] float32 intrinsics in pixels; principal point at the image centre
-    world_to_camera: Tensor  # [4, 4] float32; identity for EndoNeRF scenes
+    K: Tensor  # [3, 3] float32 intrinsics in pixels: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
+    world_to_camera: Tensor  # [4, 4] float32 rigid transform; identity for a static scene
     width: int
     height: int
 
     @property
-    def focal(self) -> float:
+    def fx(self) -> float:
         return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def focal(self) -> float:
+        """fx (the focal length of square-pixel cameras)."""
+        return self.fx
+
+    @property
+    def camera_to_world(self) -> Tensor:
+        """[4, 4] float32 inverse of world_to_camera ([R^T | -R^T t], computed in float64)."""
+        world_to_camera = self.world_to_camera.double()
+        rotation_t = world_to_camera[:3, :3].T
+        inverse = torch.eye(4, dtype=torch.float64)
+        inverse[:3, :3] = rotation_t
+        inverse[:3, 3] = -rotation_t @ world_to_camera[:3, 3]
+        return inverse.float()
 
 
 @dataclass(frozen=True)
@@ -46,22 +82,47 @@ class Frame:
     time: float  # index / number of frames, in [0, 1)
     image: Tensor  # [H, W, 3] float32 RGB in [0, 1]
     depth: Tensor | None  # [H, W] float32 in the scene's depth unit; 0 = no depth
-    tissue: Tensor  # [H, W] bool, True = tissue (False = tool or outside the field of view)
     is_test: bool
+    camera: Camera  # this frame's camera
+    tool: Tensor  # [H, W] bool, True = tool
+    fov: Tensor  # [H, W] bool, True = inside the field of view
+    tissue: Tensor = field(init=False)  # [H, W] bool, True = tissue = fov & ~tool
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tissue", self.fov & ~self.tool)
 
 
 @dataclass(frozen=True)
 class Scene:
-    """A loaded scene: frames, one static camera, and what its depth means."""
+    """A loaded scene: frames with their cameras, and what its depth means."""
 
     root: Path
     frames: list[Frame]
-    camera: Camera
     meta: SceneMeta
     near: float
     far: float
     has_depth: bool
-    has_masks: bool
+    has_masks: bool  # tool masks (masks/) present
+    has_fov: bool  # a field-of-view mask (fov_mask.png) present
+
+    @property
+    def camera(self) -> Camera:
+        """Frame 0's camera; for a static scene every frame's."""
+        return self.frames[0].camera
+
+    @property
+    def width(self) -> int:
+        return self.camera.width
+
+    @property
+    def height(self) -> int:
+        return self.camera.height
+
+    @property
+    def has_moving_camera(self) -> bool:
+        """Whether any frame's pose differs from frame 0's."""
+        first = self.camera.world_to_camera
+        return any(not torch.equal(f.camera.world_to_camera, first) for f in self.frames[1:])
 
     @property
     def train_frames(self) -> list[Frame]:
@@ -137,12 +198,26 @@ def read_depth(path: Path, depth_scale: float) -> np.ndarray:
 
 def read_tool_mask(path: Path) -> np.ndarray:
     """A tool mask file as bool [H, W], True = tool (stored as 255; any value > 127 is tool)."""
+    return _read_binary_mask(path, TOOL_VALUE)
+
+
+def read_fov_mask(path: Path) -> np.ndarray:
+    """fov_mask.png as bool [H, W], True = inside the field of view (stored as 255)."""
+    inside = _read_binary_mask(path, INSIDE_VALUE)
+    if not inside.any():
+        raise DataError(path, f"marks no pixel as inside the field of view (expected "
+                              f"{INSIDE_VALUE} = inside, 0 = outside)")
+    return inside
+
+
+def _read_binary_mask(path: Path, on_value: int) -> np.ndarray:
+    """bool [H, W]: 8-bit values above on_value / 2 (other depths: above half the maximum)."""
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise DataError(path, "cannot be read as a mask image (missing or corrupt)")
     if raw.ndim == 3:
         raw = raw[..., 0]
-    threshold = TOOL_VALUE // 2 if raw.dtype == np.uint8 else raw.max(initial=0) // 2
+    threshold = on_value // 2 if raw.dtype == np.uint8 else raw.max(initial=0) // 2
     return raw > threshold
 
 
@@ -162,24 +237,57 @@ def read_poses_bounds(path: Path) -> np.ndarray:
     return poses.astype(np.float64)
 
 
-def camera_from_poses(poses: np.ndarray, path: Path, height: int, width: int) -> Camera:
-    """The camera from the hwf column; every frame must have the same camera and pose."""
+def cameras_from_poses(poses: np.ndarray, path: Path, height: int, width: int,
+                       intrinsics: Intrinsics | None, meta_path: Path) -> list[Camera]:
+    """One camera per row of poses_bounds [N, 17]: the intrinsics (or the hwf focal with a
+    centred principal point), and the LLFF pose converted to OpenCV world-to-camera.
+
+    Frames with equal poses share one Camera object.
+    """
     blocks = poses[:, :15].reshape(-1, 3, 5)
     hwf = blocks[:, :, 4]
     if not np.allclose(hwf, hwf[0]):
-        raise DataError(path, "frames have different (H, W, focal); surgsplat expects one camera")
+        raise DataError(path, "frames have different (H, W, focal); surgsplat expects one "
+                              "set of intrinsics for all frames")
     file_h, file_w, focal = hwf[0]
     if (int(round(file_h)), int(round(file_w))) != (height, width):
         raise DataError(path, f"says images are {int(file_h)}x{int(file_w)} (HxW) but "
                               f"{IMAGES_DIR}/ holds {height}x{width}")
     if focal <= 0:
         raise DataError(path, f"focal length must be positive, got {focal:g}")
-    if not np.allclose(blocks[:, :, :4], blocks[0, :, :4]):
-        raise DataError(path, "camera poses change over time; surgsplat expects a static camera")
-    K = torch.tensor([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]],
-                     dtype=torch.float32)
-    # A static camera defines the world frame: world coordinates are camera coordinates.
-    return Camera(K=K, world_to_camera=torch.eye(4), width=width, height=height)
+    if intrinsics is None:
+        intrinsics = Intrinsics.centred(focal, width, height)
+    else:
+        try:
+            intrinsics.check(width, height)
+        except ValueError as err:
+            raise DataError(meta_path, f"intrinsics: {err}") from None
+        if not math.isclose(focal, intrinsics.fx, rel_tol=FOCAL_TOLERANCE):
+            raise DataError(path, f"hwf focal {focal:g} px disagrees with fx "
+                                  f"{intrinsics.fx:g} px of {meta_path.name}; expected equal")
+    _check_rotations(blocks[:, :, :3], path)
+    K = torch.tensor(intrinsics.matrix(), dtype=torch.float32)
+    world_to_camera = torch.from_numpy(world_to_camera_from_llff(blocks[:, :, :4])).float()
+    cameras: list[Camera] = []
+    for pose in world_to_camera:
+        if cameras and torch.equal(pose, cameras[-1].world_to_camera):
+            cameras.append(cameras[-1])
+        else:
+            cameras.append(Camera(K=K, world_to_camera=pose, width=width, height=height))
+    return cameras
+
+
+def _check_rotations(rotations: np.ndarray, path: Path) -> None:
+    """DataError unless every [3, 3] of rotations [N, 3, 3] is a rotation (within tolerance)."""
+    deviation = np.abs(rotations.transpose(0, 2, 1) @ rotations - np.eye(3)).max(axis=(1, 2))
+    determinant = np.linalg.det(rotations)
+    bad = np.flatnonzero((deviation > ROTATION_TOLERANCE) | (determinant <= 0))
+    if len(bad):
+        row = int(bad[0])
+        raise DataError(path, f"row {row}: the 3x3 pose block is not a rotation (|R^T R - I| "
+                              f"up to {deviation[row]:.3g}, det {determinant[row]:.3g}); "
+                              "expected an LLFF camera-to-world rotation with columns [down, "
+                              "right, backwards]")
 
 
 def _folder_files(root: Path, name: str, suffixes: tuple[str, ...], required: bool) -> list[Path]:
@@ -222,32 +330,46 @@ def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
     if len(poses) != count:
         raise DataError(poses_path, f"has {len(poses)} rows but {IMAGES_DIR}/ holds {count} frames")
 
+    first_image = read_image(image_files[0])
+    size = first_image.shape[:2]
+    height, width = size
+    cameras = cameras_from_poses(poses, poses_path, height, width, meta.intrinsics,
+                                 root / META_FILE)
+    fov_path = root / FOV_FILE
+    has_fov = fov_path.is_file()
+    fov = torch.ones(size, dtype=torch.bool)  # shared by every frame
+    if has_fov:
+        fov_np = read_fov_mask(fov_path)
+        _check_size(fov_path, fov_np.shape, size)
+        fov = torch.from_numpy(fov_np)
+
     frames = []
-    size: tuple[int, int] | None = None
     for index, image_path in enumerate(image_files):
-        image = read_image(image_path)
-        size = size or image.shape[:2]
+        image = first_image if index == 0 else read_image(image_path)
         _check_size(image_path, image.shape[:2], size)
         depth = None
         if depth_files:
             depth_np = read_depth(depth_files[index], meta.depth_scale)
             _check_size(depth_files[index], depth_np.shape, size)
             depth = torch.from_numpy(depth_np)
-        tissue = torch.ones(size, dtype=torch.bool)
+        tool = torch.zeros(size, dtype=torch.bool)
         if mask_files:
-            tool = read_tool_mask(mask_files[index])
-            _check_size(mask_files[index], tool.shape, size)
-            if tool.all():
-                raise DataError(mask_files[index], "marks every pixel as tool: no tissue is visible")
-            tissue = torch.from_numpy(~tool)
+            tool_np = read_tool_mask(mask_files[index])
+            _check_size(mask_files[index], tool_np.shape, size)
+            if tool_np.all():
+                raise DataError(mask_files[index], "marks every pixel as tool: no tissue is "
+                                                   "visible")
+            tool = torch.from_numpy(tool_np)
+            if has_fov and not (fov & ~tool).any():
+                raise DataError(mask_files[index], f"marks every pixel inside {FOV_FILE} as "
+                                                   "tool: no tissue is visible")
         frames.append(Frame(index=index, time=index / count,
                             image=torch.from_numpy(image).float().div_(255.0), depth=depth,
-                            tissue=tissue, is_test=is_test_index(index)))
-    height, width = size
-    camera = camera_from_poses(poses, poses_path, height, width)
+                            is_test=is_test_index(index), camera=cameras[index], tool=tool,
+                            fov=fov))
     near, far = (float(v) for v in poses[0, 15:17])
-    return Scene(root=root, frames=frames, camera=camera, meta=meta, near=near, far=far,
-                 has_depth=bool(depth_files), has_masks=bool(mask_files))
+    return Scene(root=root, frames=frames, meta=meta, near=near, far=far,
+                 has_depth=bool(depth_files), has_masks=bool(mask_files), has_fov=has_fov)
 
 
 def _check_size(path: Path, shape: tuple[int, ...], expected: tuple[int, int]) -> None:

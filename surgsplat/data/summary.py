@@ -17,7 +17,11 @@ class SceneSummary:
     num_frames: int
     width: int
     height: int
-    focal_px: float
+    focal_px: float  # fx
+    fy_px: float
+    principal_point_px: tuple[float, float]  # (cx, cy), pixel centres at +0.5
+    moving_camera: bool
+    camera_travel: float  # largest distance of a camera centre from frame 0's, scene unit
     num_train: int
     num_test: int
     test_indices: list[int]
@@ -25,13 +29,14 @@ class SceneSummary:
     depth_min: float | None  # over valid (> 0) tissue pixels of all frames; None without depth
     depth_max: float | None
     depth_valid_share: float | None  # share of tissue pixels with depth > 0
-    tool_share_mean: float  # mean share of non-tissue (tool / outside view) pixels per frame
+    tool_share_mean: float  # mean share of tool pixels per frame (masks/)
     tool_share_max: float
+    fov_share: float  # share of pixels inside the field of view (1.0 without fov_mask.png)
     has_masks: bool
 
 
 def summarise(scene: Scene) -> SceneSummary:
-    tool_shares = torch.tensor([1.0 - f.tissue.float().mean().item() for f in scene.frames])
+    tool_shares = torch.tensor([f.tool.float().mean().item() for f in scene.frames])
     depth_min = depth_max = valid_share = None
     if scene.has_depth:
         valid_counts = tissue_counts = 0
@@ -47,14 +52,18 @@ def summarise(scene: Scene) -> SceneSummary:
         depth_min = min(lows) if lows else None
         depth_max = max(highs) if highs else None
         valid_share = valid_counts / max(tissue_counts, 1)
+    camera = scene.camera
+    centres = torch.stack([f.camera.camera_to_world[:3, 3] for f in scene.frames])  # [N, 3]
     return SceneSummary(
-        root=str(scene.root), num_frames=len(scene.frames), width=scene.camera.width,
-        height=scene.camera.height, focal_px=scene.camera.focal,
+        root=str(scene.root), num_frames=len(scene.frames), width=scene.width,
+        height=scene.height, focal_px=camera.fx, fy_px=camera.fy,
+        principal_point_px=(camera.cx, camera.cy), moving_camera=scene.has_moving_camera,
+        camera_travel=float((centres - centres[0]).norm(dim=1).max()),
         num_train=len(scene.train_frames), num_test=len(scene.test_frames),
         test_indices=[f.index for f in scene.test_frames], depth_unit=scene.depth_unit,
         depth_min=depth_min, depth_max=depth_max, depth_valid_share=valid_share,
         tool_share_mean=float(tool_shares.mean()), tool_share_max=float(tool_shares.max()),
-        has_masks=scene.has_masks)
+        fov_share=float(scene.frames[0].fov.float().mean()), has_masks=scene.has_masks)
 
 
 def format_summary(summary: SceneSummary) -> list[tuple[str, str]]:
@@ -63,7 +72,13 @@ def format_summary(summary: SceneSummary) -> list[tuple[str, str]]:
         ("scene", summary.root),
         ("frames", f"{summary.num_frames} ({summary.num_train} train, {summary.num_test} test: "
                    f"i % 8 == 1 -> {summary.test_indices})"),
-        ("size", f"{summary.width} x {summary.height} px (W x H), focal {summary.focal_px:.2f} px"),
+        ("size", f"{summary.width} x {summary.height} px (W x H)"),
+        ("intrinsics", f"fx {summary.focal_px:.2f}, fy {summary.fy_px:.2f}, principal point "
+                       f"({summary.principal_point_px[0]:.2f}, "
+                       f"{summary.principal_point_px[1]:.2f}) px"),
+        ("camera", f"moving, centre travels up to {summary.camera_travel:.3g} "
+                   f"{summary.depth_unit}" if summary.moving_camera else "static"),
+        ("field of view", f"{100 * summary.fov_share:.1f}% of pixels inside"),
     ]
     if summary.depth_min is None:
         rows.append(("depth", "none (monocular)"))
@@ -72,8 +87,8 @@ def format_summary(summary: SceneSummary) -> list[tuple[str, str]]:
                               f"{summary.depth_unit}, valid on "
                               f"{100 * summary.depth_valid_share:.1f}% of tissue pixels"))
     if summary.has_masks:
-        rows.append(("tool / excluded", f"mean {100 * summary.tool_share_mean:.1f}% of pixels, "
-                                        f"max {100 * summary.tool_share_max:.1f}%"))
+        rows.append(("tool", f"mean {100 * summary.tool_share_mean:.1f}% of pixels, "
+                             f"max {100 * summary.tool_share_max:.1f}%"))
     else:
-        rows.append(("tool / excluded", "no masks (every pixel is tissue)"))
+        rows.append(("tool", "no tool masks"))
     return rows

@@ -191,20 +191,3 @@ def depth_rmse(pred_depth: Tensor, gt_depth: Tensor, tissue: Tensor) -> float:
         raise ValueError("no tissue pixel has a positive ground-truth depth")
     error = pred_depth[valid].double() - gt_depth[valid].double()
     return float(error.square().mean().sqrt())
-
-
-def backproject(depth: Tensor, K: Tensor, mask: Tensor) -> Tensor:
-    """[M, 3] camera-space points of the pixels where mask is True and depth > 0.
-
-    depth: [H, W] z-depth in the scene's unit; K: [3, 3] pinhole intrinsics; mask: bool [H, W].
-    Pixel (u, v) = (column, row) is taken at its centre (u + 0.5, v + 0.5); rows follow the
-    pixel order of `depth[mask & (depth > 0)]`.
-    """
-    if depth.dim() != 2 or mask.shape != depth.shape or mask.dtype != torch.bool:
-        raise ValueError(f"expected depth [H, W] and a bool mask of the same shape, got "
-                         f"{tuple(depth.shape)} and {mask.dtype} {tuple(mask.shape)}")
-    rows, cols = torch.nonzero(mask & (depth > 0), as_tuple=True)
-    z = depth[rows, cols]
-    x = (cols.to(depth.dtype) + 0.5 - K[0, 2]) / K[0, 0] * z
-    y = (rows.to(depth.dtype) + 0.5 - K[1, 2]) / K[1, 1] * z
-    return torch.stack([x, y, z], dim=1)

@@ -2,9 +2,10 @@
 
 Image metrics exclude tool pixels in two named conventions (see image_metrics.py); depth error
 is over tissue pixels with valid depth; on a phantom, geometry is measured against the
-ground-truth tissue mesh of each test frame (gt/meshes/<frame>.ply), using the reconstructed
-surface: the rendered depth back-projected over tissue pixels, and normals against the
-ground-truth camera-space normals (gt/normals/<frame>.npy).
+ground-truth tissue mesh of each test frame (gt/meshes/<frame>.ply, world frame), using the
+reconstructed surface: the rendered depth back-projected over tissue pixels with the frame's
+camera into the world frame; and normals against the ground-truth camera-space normals
+(gt/normals/<frame>.npy).
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ import torch
 
 from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.layout import frame_stem
-from surgsplat.eval.geometry_metrics import backproject, depth_rmse, geometry_metrics
+from surgsplat.data.scene import Camera
+from surgsplat.eval.geometry_metrics import depth_rmse, geometry_metrics
+from surgsplat.image.pinhole import backproject
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
 from surgsplat.eval.normals import normal_angle_deg, surface_normals
@@ -64,7 +67,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     render_seconds = 0.0
     for frame in frames:
         started = time.perf_counter()
-        out = render_frame(run.model, scene.camera, FrameTime(frame.index, frame.time), background)
+        out = render_frame(run.model, frame.camera, FrameTime(frame.index, frame.time), background)
         render_seconds += time.perf_counter() - started
         pred = out.rgb.clamp(0, 1)
         row = image_row(pred, frame.image, frame.tissue, lpips_model)
@@ -74,11 +77,11 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
                 row["depth_rmse"] = depth_rmse(out.depth, frame.depth, frame.tissue)
         gt_mesh = mesh_path(scene.root, frame.index)
         if options.geometry and gt_mesh.is_file():
-            row.update(frame_geometry(out.depth, out.alpha, frame.tissue, scene.camera.K,
+            row.update(frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
                                       gt_mesh, seed=frame.index))
         gt_normals = normals_path(scene.root, frame.index)
         if options.geometry and gt_normals.is_file():
-            normals, valid, normal_source = surface_normals(out, scene.camera.K)
+            normals, valid, normal_source = surface_normals(out, frame.camera.K)
             truth = torch.from_numpy(np.load(gt_normals, allow_pickle=False))
             angles.append(normal_angle_deg(normals, truth, valid & frame.tissue))
         for key, value in row.items():
@@ -111,7 +114,8 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         "ssim": "as ssim_zeroed: tool pixels zeroed, SSIM map averaged over all pixels",
         "lpips": "AlexNet LPIPS v0.1, inputs scaled to [-1, 1], tool pixels zeroed",
         "depth_rmse": "over tissue pixels with valid depth",
-        "geometry": "rendered depth back-projected over tissue pixels vs gt tissue mesh",
+        "geometry": "rendered depth back-projected over tissue pixels with the frame's camera "
+                    "into the world frame vs gt tissue mesh",
         "normal_error_deg": "angle between rendered (or rendered-depth) and gt normals, "
                             "orientation-free, pooled over the tissue pixels of all test frames",
         "fps": "rendering the test frames, this machine",
@@ -132,10 +136,11 @@ def image_row(pred: torch.Tensor, gt: torch.Tensor, tissue: torch.Tensor,
 
 
 def frame_geometry(depth: torch.Tensor, alpha: torch.Tensor, tissue: torch.Tensor,
-                   K: torch.Tensor, gt_mesh: Path, seed: int) -> dict[str, float]:
-    """Geometry metrics of one frame's reconstructed tissue surface against its gt mesh."""
+                   camera: Camera, gt_mesh: Path, seed: int) -> dict[str, float]:
+    """Geometry metrics of one frame's reconstructed tissue surface against its gt mesh: the
+    depth [H, W] rendered from `camera`, back-projected into the world frame of the mesh."""
     surface = tissue & (alpha > 0.5)
-    points = backproject(depth, K, surface).numpy()
+    points = backproject(depth, camera.K, surface, camera.camera_to_world).numpy()
     if len(points) > GEOMETRY_POINTS:
         keep = np.random.default_rng(seed).choice(len(points), GEOMETRY_POINTS, replace=False)
         points = points[keep]

@@ -30,13 +30,34 @@ def backproject_camera(depth: Tensor, K: Tensor) -> Tensor:
     return pixel_rays(K, width, height, depth.dtype) * depth[..., None]
 
 
+def backproject(depth: Tensor, K: Tensor, mask: Tensor,
+                camera_to_world: Tensor | None = None) -> Tensor:
+    """[M, 3] points of the pixels where mask is True and depth > 0: in camera space, or in the
+    world frame when camera_to_world [4, 4] is given.
+
+    depth: [H, W] z-depth in the scene's unit; K: [3, 3] pinhole intrinsics (fx, fy, cx, cy);
+    mask: bool [H, W]. Rows follow the pixel order of `depth[mask & (depth > 0)]`.
+    """
+    if depth.dim() != 2 or mask.shape != depth.shape or mask.dtype != torch.bool:
+        raise ValueError(f"expected depth [H, W] and a bool mask of the same shape, got "
+                         f"{tuple(depth.shape)} and {mask.dtype} {tuple(mask.shape)}")
+    chosen = mask & (depth > 0)
+    height, width = depth.shape
+    points = pixel_rays(K, width, height, depth.dtype)[chosen] * depth[chosen][:, None]
+    if camera_to_world is None:
+        return points
+    pose = camera_to_world.to(points.dtype)
+    return points @ pose[:3, :3].T + pose[:3, 3]
+
+
 def depth_normals(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
     """Camera-space normals of the surface a depth map [H, W] describes (EndoPlanar Eq. 7).
 
     Each pixel's four neighbours are back-projected; the normal is the normalised cross product
     (P_right - P_left) x (P_down - P_up), oriented to face away from the camera (n . P > 0 at the
     pixel's point P, the convention of the rendered planar normals). Returns normals [H, W, 3] and valid [H, W] bool:
-    interior pixels whose four neighbours all have depth > 0 and a non-degenerate cross product.
+    interior pixels that, and whose four neighbours, have depth > 0, with a non-degenerate cross
+    product.
     """
     points = backproject_camera(depth, K)  # [H, W, 3]
     valid = torch.zeros(depth.shape, dtype=torch.bool, device=depth.device)
@@ -48,7 +69,8 @@ def depth_normals(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
     facing = (normal * points[1:-1, 1:-1]).sum(-1, keepdim=True)
     normal = torch.where(facing < 0, -normal, normal)
     positive = depth > 0
-    neighbours = positive[1:-1, 2:] & positive[1:-1, :-2] & positive[2:, 1:-1] & positive[:-2, 1:-1]
+    neighbours = (positive[1:-1, 2:] & positive[1:-1, :-2] & positive[2:, 1:-1]
+                  & positive[:-2, 1:-1] & positive[1:-1, 1:-1])
     normals = torch.nn.functional.pad(normal.permute(2, 0, 1), (1, 1, 1, 1)).permute(1, 2, 0)
     valid[1:-1, 1:-1] = neighbours & (length[..., 0] > 1e-12)
     return normals, valid

@@ -25,6 +25,7 @@ from torch import Tensor
 
 from surgsplat.data.scene import Frame, Scene
 from surgsplat.errors import DataError
+from surgsplat.image.pinhole import backproject
 
 
 @dataclass
@@ -49,16 +50,8 @@ class InitConfig:
 
 @dataclass
 class PointCloud:
-    means: Tensor  # [M, 3] camera-space positions, scene units
+    means: Tensor  # [M, 3] world-frame positions, scene units
     colors: Tensor  # [M, 3] RGB in [0, 1]
-
-
-def pixel_rays(K: Tensor, height: int, width: int) -> Tensor:
-    """[H, W, 3] camera-space ray directions with z = 1 through the pixel centres (x + 0.5)."""
-    ys, xs = torch.meshgrid(torch.arange(height, dtype=torch.float32) + 0.5,
-                            torch.arange(width, dtype=torch.float32) + 0.5, indexing="ij")
-    return torch.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1],
-                        torch.ones_like(xs)], dim=-1)
 
 
 def _stride_mask(height: int, width: int, stride: int) -> Tensor:
@@ -82,7 +75,7 @@ def _selected_pixels(scene: Scene, config: InitConfig) -> list[tuple[Frame, Tens
     """(frame, [H, W] bool) pairs of the pixels that become points."""
     frames = scene.train_frames
     first = frames[0]
-    stride = _stride_mask(scene.camera.height, scene.camera.width, config.pixel_stride)
+    stride = _stride_mask(scene.height, scene.width, config.pixel_stride)
     valid = [f.tissue & (f.depth > 0) & stride for f in frames]
     chosen = [(first, valid[0])]
     if config.fusion == "none":
@@ -106,18 +99,20 @@ def _selected_pixels(scene: Scene, config: InitConfig) -> list[tuple[Frame, Tens
 
 def initial_points(scene: Scene, config: InitConfig) -> PointCloud:
     """The initial point cloud of `scene` (train frames only), at most config.max_points."""
-    camera = scene.camera
-    rays = pixel_rays(camera.K, camera.height, camera.width)
     if scene.has_depth:
         means, colors = [], []
         for frame, mask in _selected_pixels(scene, config):
-            means.append(rays[mask] * frame.depth[mask][:, None])
-            colors.append(frame.image[mask])
+            camera = frame.camera
+            means.append(backproject(frame.depth, camera.K, mask, camera.camera_to_world))
+            colors.append(frame.image[mask & (frame.depth > 0)])
         points, rgb = torch.cat(means), torch.cat(colors)
     else:
         first = scene.train_frames[0]
-        mask = first.tissue & _stride_mask(camera.height, camera.width, config.pixel_stride)
-        points, rgb = rays[mask] * config.monocular_depth, first.image[mask]
+        mask = first.tissue & _stride_mask(scene.height, scene.width, config.pixel_stride)
+        plane = torch.full(mask.shape, config.monocular_depth)
+        camera = first.camera
+        points = backproject(plane, camera.K, mask, camera.camera_to_world)
+        rgb = first.image[mask]
     if points.shape[0] == 0:
         raise DataError(scene.root, "no tissue pixel with valid depth to initialise Gaussians from")
     if points.shape[0] > config.max_points:

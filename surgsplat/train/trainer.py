@@ -163,7 +163,7 @@ class Trainer:
         self.iteration += 1
         self._update_learning_rates()
         frame = self._next_frame()
-        camera = self.scene.camera
+        camera = frame.camera
         when = FrameTime(frame.index, frame.time)
         absgrad = torch.zeros(self.model.gaussians.num_gaussians)
         output, state = self.model.render(camera, when, self.background, absgrad=absgrad)

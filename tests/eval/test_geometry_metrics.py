@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from surgsplat.eval.geometry_metrics import (backproject, chamfer_mm, depth_rmse, geometry_metrics,
+from surgsplat.image.pinhole import backproject
+from surgsplat.eval.geometry_metrics import (chamfer_mm, depth_rmse, geometry_metrics,
                                              point_to_surface, point_triangle_distance,
                                              sample_surface)
 
@@ -188,3 +189,29 @@ def test_backproject_uses_pixel_centres():
     reprojected = (K @ points.T).T
     torch.testing.assert_close(reprojected[:, :2] / reprojected[:, 2:],
                                torch.tensor([[20.5, 10.5], [31.5, 24.5]]), atol=1e-4, rtol=0)
+
+
+def test_backproject_into_the_world_with_the_frames_camera():
+    """With camera_to_world, the points are in the world: mapping them back with the camera's
+    world_to_camera and K lands on the pixel centres at their depths (off-centre principal
+    point, non-square pixels)."""
+    K = torch.tensor([[43.9, 0, 30.5], [0, 46.9, 21.0], [0, 0, 1]], dtype=torch.float64)
+    angle = math.radians(7.0)
+    world_to_camera = torch.eye(4, dtype=torch.float64)
+    world_to_camera[:3, :3] = torch.tensor([[math.cos(angle), 0, math.sin(angle)], [0, 1, 0],
+                                            [-math.sin(angle), 0, math.cos(angle)]])
+    world_to_camera[:3, 3] = torch.tensor([3.0, -2.0, 5.0])
+    camera_to_world = torch.linalg.inv(world_to_camera)
+    depth = torch.zeros(40, 60, dtype=torch.float64)
+    depth[10, 20], depth[30, 45] = 40.0, 70.0
+    mask = torch.ones(40, 60, dtype=torch.bool)
+    world = backproject(depth, K, mask, camera_to_world)
+    camera_points = backproject(depth, K, mask)
+    assert not torch.allclose(world, camera_points)
+    back = world @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    torch.testing.assert_close(back, camera_points, atol=1e-12, rtol=0)  # mm
+    pixels = back @ K.T
+    torch.testing.assert_close(pixels[:, :2] / pixels[:, 2:], torch.tensor(
+        [[20.5, 10.5], [45.5, 30.5]], dtype=torch.float64), atol=1e-9, rtol=0)
+    torch.testing.assert_close(back[:, 2], torch.tensor([40.0, 70.0], dtype=torch.float64),
+                               atol=1e-12, rtol=0)

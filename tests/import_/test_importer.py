@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from surgsplat.data.importer import DISPARITY_DIR, DISPARITY_STEPS, ImportConfig, import_scene
-from surgsplat.data.scene import load_scene
+from surgsplat.data.scene import load_scene, read_tool_mask
 from surgsplat.errors import DataError, SurgsplatError
 
 from .conftest import FRAMES, HEIGHT, WIDTH, endoscope_frames, tool_box, view_disk
@@ -26,16 +26,20 @@ def test_video_with_masks_and_fov(video: Path, mask_folder: Path, tmp_path: Path
     assert (scene.camera.width, scene.camera.height) == (WIDTH, HEIGHT)
     # Default focal: 70 degree horizontal field of view.
     assert scene.camera.focal == pytest.approx(WIDTH / 2 / np.tan(np.radians(35)), rel=1e-6)
+    assert scene.has_fov
+    fov = cv2.imread(str(out / "fov_mask.png"), cv2.IMREAD_UNCHANGED) == 255
+    assert not fov[~view_disk()].any() and fov[view_disk()].mean() > 0.85  # the margin eats the rim
     for i, frame in enumerate(scene.frames):
+        # masks/ holds the tool alone; the border is in fov_mask.png, kept apart.
+        stored = read_tool_mask(out / "masks" / f"{i:06d}.png")
+        assert np.array_equal(stored, tool_box(i)) and np.array_equal(frame.tool.numpy(), stored)
+        assert np.array_equal(frame.fov.numpy(), fov)
         tissue = frame.tissue.numpy()
-        assert not tissue[tool_box(i)].any()  # tool pixels from the mask files
-        assert not tissue[~view_disk()].any()  # outside the view merged in
-        inner = view_disk() & ~tool_box(i)
-        assert tissue[inner].mean() > 0.85  # the rest is tissue (the FOV margin eats the rim)
+        assert np.array_equal(tissue, fov & ~tool_box(i))
     assert ("import", FRAMES, FRAMES) in stages and stages[0][0] == "field of view"
     extra = json.loads((out / "scene.json").read_text())["extra"]
     assert extra["fov_mask"]["kind"] == "circle" and extra["masks"]["matched_by"] == "order"
-    assert "assumed" in extra["focal_source"]
+    assert "assumed" in extra["camera_source"]
 
 
 def test_range_stride_resize_without_fov(video: Path, tmp_path: Path):
@@ -165,8 +169,13 @@ def test_real_cholecseg8k_clip(shared_data: Path, tmp_path: Path):
     assert extra["dropped_without_mask"] == ["frame_633_endo.png"]  # the one frame without mask
     assert len(scene.frames) == 3 and (scene.camera.width, scene.camera.height) == (854, 480)
     labels = cv2.imread(str(clip / "frame_632_endo_watershed_mask.png"))[..., 0]
-    tissue = scene.frames[2].tissue.numpy()
-    assert not tissue[np.isin(labels, (31, 32))].any()  # every tool pixel excluded
+    tools = np.isin(labels, (31, 32))
+    frame = scene.frames[2]
+    # masks/ holds exactly the tool classes; the black border lives in fov_mask.png alone.
+    assert np.array_equal(read_tool_mask(out / "masks" / "000002.png"), tools)
+    assert np.array_equal(frame.tool.numpy(), tools)
+    assert scene.has_fov and extra["fov_mask"]["kind"] == "circle"
     in_view = labels != 50  # CholecSeg8k's own "outside the view" class
-    inside = tissue | np.isin(labels, (31, 32))
-    assert (inside & in_view).sum() / (inside | in_view).sum() > 0.97  # FOV IoU
+    fov = frame.fov.numpy()
+    assert (fov & in_view).sum() / (fov | in_view).sum() > 0.97  # FOV IoU
+    assert np.array_equal(frame.tissue.numpy(), fov & ~tools)

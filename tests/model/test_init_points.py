@@ -9,7 +9,7 @@ import torch
 from surgsplat.data.layout import SceneMeta, SceneWriter
 from surgsplat.data.scene import load_scene
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel, SH_C0
-from surgsplat.model.init_points import InitConfig, initial_points, pixel_rays
+from surgsplat.model.init_points import InitConfig, initial_points
 
 H, W, FOCAL = 32, 40, 40.0
 
@@ -31,14 +31,6 @@ def write_scene(root: Path, frames: int = 6, with_depth: bool = True, moving: bo
             tool[:, :10] = True
         writer.add_frame(image, depth if with_depth else None, tool)
     return writer.finish()
-
-
-def test_pixel_rays_go_through_pixel_centres():
-    K = torch.tensor([[FOCAL, 0, W / 2], [0, FOCAL, H / 2], [0, 0, 1.0]])
-    rays = pixel_rays(K, H, W)
-    assert rays.shape == (H, W, 3)
-    # The pixel whose centre is at (W/2 + 0.5, H/2 + 0.5) has ray (0.5/f, 0.5/f, 1).
-    assert torch.allclose(rays[H // 2, W // 2], torch.tensor([0.5 / FOCAL, 0.5 / FOCAL, 1.0]))
 
 
 def test_frame0_back_projection_lies_on_the_wall(tmp_path: Path):

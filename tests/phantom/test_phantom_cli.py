@@ -29,3 +29,12 @@ def test_phantom_command_rejects_unknown_preset(tmp_path: Path):
     assert "Traceback" not in result.stderr
     assert "valid presets: small, full" in result.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_phantom_command_moving_camera(tmp_path: Path):
+    out = tmp_path / "moving"
+    result = run_cli("phantom", "--out", str(out), "--camera", "moving", "--frames", "3")
+    assert result.returncode == 0, result.stderr
+    assert "moving, centre travels" in result.stdout
+    scene = load_scene(out)
+    assert scene.has_moving_camera and scene.meta.extra["camera"] == "moving"

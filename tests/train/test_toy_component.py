@@ -74,7 +74,7 @@ def toy_method(iterations: int):
 
 def toy_error(model, scene) -> float:
     frame = scene.frames[0]
-    out = render_frame(model, scene.camera, FrameTime(frame.index, frame.time))
+    out = render_frame(model, frame.camera, FrameTime(frame.index, frame.time))
     covered = out.alpha > 0.9
     return float((out.extras["toy"][..., 0][covered] / out.alpha[covered] - TARGET).abs().mean())
 

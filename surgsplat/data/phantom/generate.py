@@ -1,14 +1,20 @@
 """Write a phantom to disk: an EndoNeRF-layout scene plus its ground truth under gt/.
 
 Besides images/, depth/ (mm, the tool where the tool is), masks/ (255 = tool),
-poses_bounds.npy and scene.json, the folder holds per frame i (stem = 6-digit index):
+poses_bounds.npy (each frame's endoscope pose) and scene.json, the folder holds per frame i
+(stem = 6-digit index):
 
     gt/tissue_images/{stem}.png  the frame without the tool (same light and exposure)
-    gt/tissue_depth/{stem}.npy   float32 [H, W] tissue depth in mm, also behind the tool
+    gt/tissue_depth/{stem}.npy   float32 [H, W] tissue depth in mm (frame i's camera z), also
+                                 behind the tool
     gt/albedo/{stem}.png         tissue albedo
-    gt/normals/{stem}.npy        float32 [H, W, 3] unit camera-space tissue normals
-    gt/meshes/{stem}.ply         the tissue surface, camera space, mm (binary PLY)
+    gt/normals/{stem}.npy        float32 [H, W, 3] unit tissue normals in frame i's camera space
+    gt/meshes/{stem}.ply         the tissue surface at time i / N, world frame, mm (binary PLY)
     gt/exposure.json             list of the per-frame exposure factors
+    gt/camera_poses.npy          float64 [N, 4, 4] OpenCV world-to-camera of every frame
+
+The world frame is the first frame's camera frame (see `camera_path`), so for the default
+static camera every pose is the identity and world = camera space.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import cv2
 import numpy as np
 
 from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem
+from surgsplat.data.phantom.camera_path import CAMERAS
 from surgsplat.data.phantom.mesh import grid_mesh
 from surgsplat.data.phantom.motion import MOTIONS
 from surgsplat.data.phantom.scene import PhantomScene
@@ -36,6 +43,7 @@ ALBEDO_DIR = f"{GT_DIR}/albedo"
 NORMALS_DIR = f"{GT_DIR}/normals"
 MESHES_DIR = f"{GT_DIR}/meshes"
 EXPOSURE_FILE = f"{GT_DIR}/exposure.json"
+CAMERA_POSES_FILE = f"{GT_DIR}/camera_poses.npy"
 
 
 @dataclass(frozen=True)
@@ -71,6 +79,8 @@ class PhantomConfig:
     """Size preset: "small" (160x128, 16 frames) or "full" (640x512, 64 frames)."""
     motion: str = "pulling"
     """Tissue motion: "pulling" (tool lifts the tissue) or "cutting" (a groove opens)."""
+    camera: str = "static"
+    """Endoscope: "static" or "moving" (translates a few mm, turns a few degrees)."""
     seed: int = 0
     """Seed of the texture, surface shape and tool path; equal seeds give identical files."""
     num_frames: int | None = None
@@ -86,6 +96,9 @@ def check_phantom_request(config: PhantomConfig, out_dir: Path) -> tuple[Phantom
     if config.motion not in MOTIONS:
         raise SurgsplatError(f"unknown phantom motion {config.motion!r}; valid motions: "
                              f"{', '.join(MOTIONS)}")
+    if config.camera not in CAMERAS:
+        raise SurgsplatError(f"unknown phantom camera {config.camera!r}; valid cameras: "
+                             f"{', '.join(CAMERAS)}")
     preset = PRESETS[config.preset]
     num_frames = preset.num_frames if config.num_frames is None else config.num_frames
     if num_frames < 1:
@@ -105,29 +118,33 @@ def generate_phantom(config: PhantomConfig, out_dir: Path,
     out_dir = Path(out_dir)
 
     scene = PhantomScene(preset.width, preset.height, preset.focal, num_frames, config.motion,
-                         config.seed)
+                         config.seed, config.camera)
     meta = SceneMeta(depth_unit="mm", source=f"phantom {config.preset} {config.motion} "
                                              f"seed {config.seed}",
                      extra=_extra(config, preset, num_frames, scene))
     writer = SceneWriter(out_dir, focal=preset.focal, meta=meta)
     for sub in (TISSUE_IMAGES_DIR, TISSUE_DEPTH_DIR, ALBEDO_DIR, NORMALS_DIR, MESHES_DIR):
         (out_dir / sub).mkdir(parents=True, exist_ok=True)
-    exposures = []
+    exposures, poses = [], []
     for index in range(num_frames):
         frame = scene.render(index)
-        writer.add_frame(frame.image, frame.depth, frame.tool_mask)
+        writer.add_frame(frame.image, frame.depth, frame.tool_mask, frame.world_to_camera)
         stem = frame_stem(index)
         _write_rgb(out_dir / TISSUE_IMAGES_DIR / f"{stem}.png", frame.tissue_image)
         _write_rgb(out_dir / ALBEDO_DIR / f"{stem}.png", frame.albedo)
         np.save(out_dir / TISSUE_DEPTH_DIR / f"{stem}.npy", frame.tissue_depth)
         np.save(out_dir / NORMALS_DIR / f"{stem}.npy", frame.normals)
         vertices, faces, colors = grid_mesh(frame.tissue_depth, scene.xn, scene.yn,
-                                            preset.mesh_step, frame.albedo)
+                                            preset.mesh_step, frame.albedo)  # camera space
+        camera_to_world = scene.camera_path.camera_to_world(scene.time(index))
+        vertices = vertices @ camera_to_world[:3, :3].T + camera_to_world[:3, 3]
         write_ply_mesh(out_dir / MESHES_DIR / f"{stem}.ply", vertices, faces, colors)
         exposures.append(frame.exposure)
+        poses.append(frame.world_to_camera)
         if progress is not None:
             progress(index + 1, num_frames)
     (out_dir / EXPOSURE_FILE).write_text(json.dumps(exposures) + "\n")
+    np.save(out_dir / CAMERA_POSES_FILE, np.stack(poses))
     return writer.finish()
 
 
@@ -141,7 +158,8 @@ def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
            scene: PhantomScene) -> dict:
     """Facts about the phantom for scene.json."""
     return {
-        "preset": config.preset, "motion": config.motion, "seed": config.seed,
+        "preset": config.preset, "motion": config.motion, "camera": config.camera,
+        "camera_path": asdict(scene.camera_path), "seed": config.seed,
         "num_frames": num_frames, "width": preset.width, "height": preset.height,
         "focal": preset.focal, "mesh_step_px": preset.mesh_step,
         "light": asdict(scene.light), "tissue_material": asdict(WET_TISSUE),
@@ -149,5 +167,7 @@ def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
         "tool": asdict(scene.geometry), "trocar_mm": scene.trocar.tolist(),
         "gt": {"tissue_images": TISSUE_IMAGES_DIR, "tissue_depth": TISSUE_DEPTH_DIR,
                "albedo": ALBEDO_DIR, "normals": NORMALS_DIR, "meshes": MESHES_DIR,
-               "exposure": EXPOSURE_FILE, "depth_unit": "mm"},
+               "exposure": EXPOSURE_FILE, "camera_poses": CAMERA_POSES_FILE,
+               "depth_unit": "mm", "frames": "depth and normals: per-frame camera space; "
+                                             "meshes: world frame (= frame 0's camera)"},
     }

@@ -1,10 +1,13 @@
 """Camera rays and their intersection with the tissue height field.
 
 The ray through pixel (u, v) passes through its centre (u + 0.5, v + 0.5) of the pinhole
-K = [[f, 0, W/2], [0, f, H/2], [0, 0, 1]]; it is described by (xn, yn) = (x/z, y/z), so its
-point at depth z is z * (xn, yn, 1). The tissue hit solves g(z) = z - h(z xn, z yn, t) = 0,
-which is increasing in z for this phantom (see `surface`), by the Illinois variant of regula
-falsi on a bracket that holds the root for every ray.
+K = [[f, 0, W/2], [0, f, H/2], [0, 0, 1]]; in camera space it is described by (xn, yn) =
+(x/z, y/z), so its point at camera depth s is s * (xn, yn, 1). In the world (where the height
+field lives) the camera centre is o and the ray direction d = R (xn, yn, 1) (R camera-to-world),
+so the point at camera depth s is o + s d. The tissue hit solves
+g(s) = o_z + s d_z - h(o_x + s d_x, o_y + s d_y, t) = 0, which is increasing in s for this
+phantom and its camera paths (see `surface`; the tests check it), by the Illinois variant of
+regula falsi on a bracket that holds the root for every ray.
 """
 
 from __future__ import annotations
@@ -31,19 +34,25 @@ def pixel_rays(width: int, height: int, focal: float) -> tuple[np.ndarray, np.nd
     return xn, yn
 
 
-def intersect_surface(surface: TissueSurface, t: float, xn: np.ndarray,
-                      yn: np.ndarray) -> np.ndarray:
-    """Depth z [...] mm where the rays (xn, yn, 1) first meet the tissue at time t."""
+def intersect_surface(surface: TissueSurface, t: float, origin: np.ndarray,
+                      directions: np.ndarray) -> np.ndarray:
+    """Camera depth s [...] mm where the rays o + s d first meet the tissue at time t.
 
-    def residual(z: np.ndarray) -> np.ndarray:
-        return z - surface.height(z * xn, z * yn, t)
+    origin: [3] camera centre in the world, mm; directions: [..., 3] world ray directions
+    whose camera-space z component is 1.
+    """
+    ox, oy, oz = (float(v) for v in origin)
+    dx, dy, dz = (np.ascontiguousarray(directions[..., k]) for k in range(3))
 
-    lo = np.full(xn.shape, NEAR_MM)
-    hi = np.full(xn.shape, FAR_MM)
+    def residual(s: np.ndarray) -> np.ndarray:
+        return oz + s * dz - surface.height(ox + s * dx, oy + s * dy, t)
+
+    lo = np.full(dx.shape, NEAR_MM)
+    hi = np.full(dx.shape, FAR_MM)
     g_lo, g_hi = residual(lo), residual(hi)
     if (g_lo >= 0).any() or (g_hi <= 0).any():
         raise RuntimeError(f"tissue leaves the depth bracket [{NEAR_MM}, {FAR_MM}] mm at t={t:g}")
-    kept_side = np.zeros(xn.shape, dtype=np.int8)  # +1: hi moved last step, -1: lo moved
+    kept_side = np.zeros(dx.shape, dtype=np.int8)  # +1: hi moved last step, -1: lo moved
     for _ in range(MAX_ITERATIONS):
         z = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
         g = residual(z)

@@ -1,4 +1,9 @@
-"""The phantom scene: tissue, tool, light and camera together, rendered one frame at a time."""
+"""The phantom scene: tissue, tool, light and camera together, rendered one frame at a time.
+
+Tissue and tool are defined in the world frame (the first frame's camera frame, see
+`camera_path`); each frame is ray-cast from that frame's endoscope pose, and everything per
+pixel (depth, normals, shading with the light at the camera) is in that frame's camera space.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from surgsplat.data.phantom.camera_path import camera_path
 from surgsplat.data.phantom.motion import motion_program
 from surgsplat.data.phantom.raycast import intersect_surface, pixel_rays
 from surgsplat.data.phantom.shading import (JAW_RGB, METAL, SHAFT_RGB, WET_TISSUE, Exposure,
@@ -40,16 +46,18 @@ class PhantomFrame:
     normals: np.ndarray  # [H, W, 3] float32: unit camera-space tissue normals, facing the camera
     tool_mask: np.ndarray  # [H, W] bool: True where the tool is nearer than the tissue
     exposure: float  # the frame's exposure factor
+    world_to_camera: np.ndarray  # [4, 4] float64: the frame's endoscope pose
 
 
 class PhantomScene:
     """A deterministic phantom of `num_frames` frames at `width` x `height` pixels."""
 
     def __init__(self, width: int, height: int, focal: float, num_frames: int, motion: str,
-                 seed: int):
+                 seed: int, camera: str = "static"):
         self.width, self.height, self.focal = width, height, float(focal)
         self.num_frames = num_frames
         self.motion = motion_program(motion)
+        self.camera_path = camera_path(camera)
         self.surface = TissueSurface(seed, self.motion)
         self.texture = TissueTexture(seed, BASE_DEPTH_MM / self.focal / TEXELS_PER_PIXEL)
         self.geometry = ToolGeometry()
@@ -66,9 +74,13 @@ class PhantomScene:
         """Time of frame `index`: index / number of frames."""
         return index / self.num_frames
 
+    def world_to_camera(self, index: int) -> np.ndarray:
+        """[4, 4] float64 pose of frame `index`'s camera."""
+        return self.camera_path.world_to_camera(self.time(index))
+
     def tool_pose(self, t: float) -> ToolPose:
-        """The tool at time t: its shaft points from the trocar at the tissue point it works
-        at, slid back along itself by the motion's insertion."""
+        """The tool at time t in the world: its shaft points from the trocar at the tissue
+        point it works at, slid back along itself by the motion's insertion."""
         anchor = self.surface.anchor(t)
         back = self.trocar - anchor
         back /= np.linalg.norm(back)
@@ -82,20 +94,41 @@ class PhantomScene:
         return ToolPose(joint=joint, forward=forward, hinge=hinge,
                         jaw_deg=self.motion.jaw_deg(t))
 
+    def camera_tool_pose(self, index: int) -> ToolPose:
+        """The tool of frame `index` in that frame's camera space."""
+        pose = self.tool_pose(self.time(index))
+        world_to_camera = self.world_to_camera(index)
+        rotation, translation = world_to_camera[:3, :3], world_to_camera[:3, 3]
+        return ToolPose(joint=rotation @ pose.joint + translation, forward=rotation @ pose.forward,
+                        hinge=rotation @ pose.hinge, jaw_deg=pose.jaw_deg)
+
+    def world_rays(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """(camera centre [3] mm, ray directions [H, W, 3]) of frame `index` in the world; a
+        direction's camera-space z component is 1."""
+        camera_to_world = self.camera_path.camera_to_world(self.time(index))
+        rotation = camera_to_world[:3, :3]
+        directions = (self.xn[..., None] * rotation[:, 0] + self.yn[..., None] * rotation[:, 1]
+                      + rotation[:, 2])
+        return camera_to_world[:3, 3], directions
+
     def render(self, index: int) -> PhantomFrame:
         """Ray-cast frame `index`: tissue, tool, nearest hit, shading and exposure."""
         t = self.time(index)
         exposure = self.exposure.factor(t)
-        tissue_depth = intersect_surface(self.surface, t, self.xn, self.yn)  # [H, W]
-        x, y = tissue_depth * self.xn, tissue_depth * self.yn
-        points = np.stack([x, y, tissue_depth], axis=-1)  # [H, W, 3]
-        normals = self.surface.normals(x, y, t)
+        world_to_camera = self.world_to_camera(index)
+        centre, directions = self.world_rays(index)
+        tissue_depth = intersect_surface(self.surface, t, centre, directions)  # [H, W]
+        x = centre[0] + tissue_depth * directions[..., 0]  # world x, y of the hits [H, W]
+        y = centre[1] + tissue_depth * directions[..., 1]
+        points = np.stack([tissue_depth * self.xn, tissue_depth * self.yn, tissue_depth],
+                          axis=-1)  # [H, W, 3] camera space
+        normals = self.surface.normals(x, y, t) @ world_to_camera[:3, :3].T  # camera space
         albedo = self.texture.sample(*self.surface.material(x, y, t)).astype(np.float64)
         cut = CUT_ALBEDO_WEIGHT * self.surface.opening(x, y, t)[..., None]
         albedo = albedo + (CUT_RGB - albedo) * cut
         tissue_image = shade(points, normals, albedo, WET_TISSUE, self.light, exposure)
 
-        hit = intersect_tool(self.geometry, self.tool_pose(t), self.xn, self.yn)
+        hit = intersect_tool(self.geometry, self.camera_tool_pose(index), self.xn, self.yn)
         tool_mask = hit.depth < tissue_depth
         image = tissue_image.copy()
         depth = tissue_depth.copy()
@@ -112,4 +145,4 @@ class PhantomScene:
             tissue_image=np.clip(tissue_image, 0.0, 1.0).astype(np.float32),
             depth=depth.astype(np.float32), tissue_depth=tissue_depth.astype(np.float32),
             albedo=albedo.astype(np.float32), normals=normals.astype(np.float32),
-            tool_mask=tool_mask, exposure=exposure)
+            tool_mask=tool_mask, exposure=exposure, world_to_camera=world_to_camera)

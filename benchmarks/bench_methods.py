@@ -1,0 +1,140 @@
+"""Method ablation on the full phantom: each run is `surgsplat train` then `surgsplat eval` in its
+own process (so train seconds, wall time including start-up, and peak RSS are each run's own).
+
+    python benchmarks/bench_methods.py [--json] [--iters N] [--work DIR] [--cases NAME ...]
+
+Cases (issue 9): deform3dgs; endoplanar without its normal loss; endoplanar; and deform3dgs on
+the moving-camera phantom with known poses. Targets: endoplanar psnr_tissue >= 38 dB, median
+normal error <= 5 deg, depth_rmse_mm no worse than deform3dgs, training time within 15% of
+deform3dgs; the moving-camera run psnr_tissue >= 35 dB. Ratios are against the deform3dgs row of
+the same run. Results go to benchmarks/results/bench_methods-<cpu>.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from machine import machine_info, results_path  # noqa: E402
+
+SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
+COLUMNS = ("psnr_tissue", "ssim", "depth_rmse_mm", "normal_error_deg_median",
+           "normal_error_deg_mean", "chamfer_mm", "p2s_median_mm", "train_seconds",
+           "wall_seconds", "num_gaussians", "peak_rss_mb")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One row of the ablation."""
+
+    name: str
+    method: str
+    phantom: str  # key of PHANTOMS
+    settings: tuple[str, ...] = ()  # --set assignments
+
+
+PHANTOMS = {"pulling": ("--preset", "full", "--motion", "pulling"),
+            "pulling-moving-camera": ("--preset", "full", "--motion", "pulling",
+                                      "--camera", "moving")}
+CASES = (
+    Case("deform3dgs", "deform3dgs", "pulling"),
+    Case("endoplanar-no-normal-loss", "endoplanar", "pulling", ("losses.normal.weight=0",)),
+    Case("endoplanar", "endoplanar", "pulling"),
+    Case("deform3dgs-moving-camera", "deform3dgs", "pulling-moving-camera"),
+)
+
+
+def surgsplat(*args: str) -> None:
+    subprocess.run([*SURGSPLAT, *args], check=True, stdout=subprocess.DEVNULL)
+
+
+def phantom_dir(work: Path, key: str) -> Path:
+    folder = work / f"phantom-{key}"
+    if not (folder / "poses_bounds.npy").is_file():
+        surgsplat("phantom", "--out", str(folder), *PHANTOMS[key])
+    return folder
+
+
+def run_case(case: Case, work: Path, iterations: int | None) -> dict:
+    scene = phantom_dir(work, case.phantom)
+    run_dir = work / f"run-{case.name}"
+    subprocess.run(["rm", "-rf", str(run_dir)], check=True)
+    options = [arg for setting in case.settings for arg in ("--set", setting)]
+    if iterations:
+        options += ["--iters", str(iterations)]
+    started = time.perf_counter()
+    surgsplat("train", "--method", case.method, "--data", str(scene), "--out", str(run_dir),
+              *options)
+    wall = time.perf_counter() - started
+    surgsplat("eval", str(run_dir))
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    row = {"case": case.name, "method": case.method, "phantom": case.phantom,
+           "settings": list(case.settings), "iterations": metrics["iteration"],
+           "wall_seconds": round(wall, 1)}
+    row.update({key: metrics[key] for key in COLUMNS if key in metrics})
+    return row
+
+
+def add_ratios(rows: list[dict]) -> None:
+    """Train time and depth error of each row as ratios to the deform3dgs row of this run."""
+    base = next((row for row in rows if row["case"] == "deform3dgs"), None)
+    if base is None:
+        return
+    for row in rows:
+        row["train_time_ratio"] = round(row["train_seconds"] / base["train_seconds"], 3)
+        if "depth_rmse_mm" in row and "depth_rmse_mm" in base:
+            row["depth_rmse_ratio"] = round(row["depth_rmse_mm"] / base["depth_rmse_mm"], 3)
+
+
+def print_table(rows: list[dict]) -> None:
+    keys = ("case",) + COLUMNS + ("train_time_ratio", "depth_rmse_ratio")
+    print(" | ".join(keys))
+    for row in rows:
+        print(" | ".join(f"{row[k]:.3f}" if isinstance(row.get(k), float) else str(row.get(k, ""))
+                         for k in keys))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " "))
+    parser.add_argument("--json", action="store_true", help="print the rows as JSON lines")
+    parser.add_argument("--iters", type=int, default=None, help="override preset iterations")
+    parser.add_argument("--work", type=Path,
+                        default=Path(tempfile.gettempdir()) / "surgsplat-bench-methods")
+    parser.add_argument("--cases", nargs="+", default=[case.name for case in CASES],
+                        choices=[case.name for case in CASES])
+    parser.add_argument("--out", type=Path, default=None,
+                        help="result file (default benchmarks/results/bench_methods-<cpu>.json)")
+    args = parser.parse_args()
+    args.work.mkdir(parents=True, exist_ok=True)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    rows = []
+    for case in CASES:
+        if case.name in args.cases:
+            rows.append(run_case(case, args.work, args.iters))
+            print(json.dumps(rows[-1]) if args.json else f"done: {rows[-1]['case']}", flush=True)
+    add_ratios(rows)
+    info = machine_info()
+    report = {"benchmark": "bench_methods", "cpu": info["cpu"], "system": info,
+              "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+              "command": " ".join(["python", "benchmarks/bench_methods.py", *sys.argv[1:]]),
+              "rows": rows}
+    out = args.out or results_path("bench_methods", info["cpu"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2) + "\n")
+    if not args.json:
+        print_table(rows)
+    print(f"results: {out}")
+
+
+if __name__ == "__main__":
+    main()
