@@ -1,5 +1,5 @@
 // Backward compositing: per tile, Gaussians back to front, recovering each pixel's transmittance
-// by division (T_before = T_after / (1 - alpha)) and the colour behind it incrementally.
+// by a reciprocal (T_before = T_after / (1 - alpha), simd.h) and the colour behind it incrementally.
 // Gradients are summed per thread, then reduced, so no atomics are needed.
 //
 // With w_i = alpha_i T_i, the image is C = sum_i w_i f_i and the alpha map A = sum_i w_i, so
@@ -73,7 +73,7 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                     __builtin_prefetch(mine + ahead * stride, 1);
                 }
                 const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
-                const float a = s.a, b = s.b, c = s.c, opacity = s.opacity;
+                const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;
                 const RowF dx = s.dx;
                 const float* feature = features + g * channels;
                 RowF g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, abs_x{}, abs_y{};
@@ -88,7 +88,9 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                     const RowF raw = s.alpha(q);
                     const RowI in = (row_of(k) < last[row]) & (raw >= kAlphaMin) & (q >= 0.0f);
                     const RowF alpha = select(in, raw, row_of(0.0f));
-                    const RowF t_before = trans[row] * row_reciprocal(1.0f - alpha);
+                    // lanes without this Gaussian keep their transmittance exactly
+                    const RowF t_before =
+                        select(in, trans[row] * reciprocal(1.0f - alpha), trans[row]);
                     const RowF weight = alpha * t_before;
                     RowF d_colour{};
                     for (int64_t ch = 0; ch < channels; ++ch) {
@@ -104,7 +106,7 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                     trans[row] = t_before;
                     // alpha = o G with G = exp(-q/2), unless clamped at kAlphaMax (then no gradient)
                     const RowI free = in & (alpha < kAlphaMax);
-                    const RowF d_o = select(free, alpha / opacity * d_alpha, row_of(0.0f));
+                    const RowF d_o = select(free, alpha * inv_opacity * d_alpha, row_of(0.0f));
                     const RowF d_q = select(free, -0.5f * alpha * d_alpha, row_of(0.0f));
                     const RowF d_mx = -d_q * (2.0f * a * dx + 2.0f * b * dy);
                     const RowF d_my = -d_q * (2.0f * b * dx + 2.0f * c * dy);

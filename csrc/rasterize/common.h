@@ -7,9 +7,7 @@
 #include <cstring>
 #include <vector>
 
-#if defined(__AVX512F__)
-#include <immintrin.h>
-#endif
+#include "simd.h"
 
 namespace surgsplat {
 
@@ -19,63 +17,27 @@ constexpr float kAlphaMax = 0.99f;           // alpha = min(0.99, o * exp(-q / 2
 constexpr float kAlphaMin = 1.0f / 255.0f;   // contributions below this are skipped
 constexpr float kTransmittanceMin = 1e-4f;   // compositing stops below this transmittance
 
-// One tile row: 16 float lanes. GCC/Clang vector extensions compile this to one AVX-512
-// register, two AVX2 registers or four SSE registers, whatever the machine has.
-typedef float RowF __attribute__((vector_size(4 * kTile)));
-typedef int32_t RowI __attribute__((vector_size(4 * kTile)));
+// One tile row: 16 float lanes (simd.h: one AVX-512 register, two AVX2 registers or four
+// SSE / NEON registers, depending on the ISA variant being compiled).
+static_assert(kTile == kVecLanes, "a tile row is one 16-lane vector");
+typedef Vec16 RowF;
+typedef Vec16i RowI;
 
-inline RowF row_of(float value) { return RowF{} + value; }
-inline RowI row_of(int32_t value) { return RowI{} + value; }
+SURGSPLAT_INLINE RowF row_of(float value) { return RowF::all(value); }
+SURGSPLAT_INLINE RowI row_of(int32_t value) { return RowI::all(value); }
 
 // The lane offsets 0, 1, ..., 15 of a tile row.
-inline RowF lane_offsets() {
+SURGSPLAT_INLINE RowF lane_offsets() {
     RowF lanes;
     for (int i = 0; i < kTile; ++i) lanes[i] = static_cast<float>(i);
     return lanes;
 }
 
-// Bitwise select: mask lanes are all ones or all zeros.
-inline RowF select(RowI mask, RowF yes, RowF no) {
-    return reinterpret_cast<RowF>((mask & reinterpret_cast<RowI>(yes)) |
-                                  (~mask & reinterpret_cast<RowI>(no)));
-}
-
-inline RowF row_min(RowF x, float bound) { return select(x > bound, row_of(bound), x); }
-
-#if defined(__AVX512F__)
-inline float lane_sum(RowF x) { return _mm512_reduce_add_ps(reinterpret_cast<__m512>(x)); }
-inline bool any_lane(RowI mask) {
-    const __m512i m = reinterpret_cast<__m512i>(mask);
-    return _mm512_test_epi32_mask(m, m) != 0;
-}
-#else
-inline float lane_sum(RowF x) {
-    float sum = 0.0f;
-    for (int i = 0; i < kTile; ++i) sum += x[i];
-    return sum;
-}
-inline bool any_lane(RowI mask) {
-    int32_t any = 0;
-    for (int i = 0; i < kTile; ++i) any |= mask[i];
-    return any != 0;
-}
-#endif
-
-// 1 / x lane-wise. With AVX-512: the 14-bit reciprocal estimate (exactly specified, so the same
-// on every AVX-512 CPU) refined by one Newton step to within about 2 ulp, several times cheaper
-// than a vector division, which is otherwise the longest operation of the backward row loop.
-inline RowF row_reciprocal(RowF x) {
-#if defined(__AVX512F__)
-    const RowF r = reinterpret_cast<RowF>(_mm512_rcp14_ps(reinterpret_cast<__m512>(x)));
-    return r * (2.0f - x * r);
-#else
-    return 1.0f / x;
-#endif
-}
+SURGSPLAT_INLINE RowF row_min(RowF x, float bound) { return select(x > bound, row_of(bound), x); }
 
 // exp(x) for x <= 0, lane-wise: x = n ln2 + r with |r| <= ln2 / 2, exp(r) by its degree-6
 // Taylor polynomial (relative error < 2e-7), 2^n built in the exponent bits.
-inline RowF row_exp(RowF x) {
+SURGSPLAT_INLINE RowF row_exp(RowF x) {
     x = select(x < -87.0f, row_of(-87.0f), x);
     const RowF round_magic = row_of(12582912.0f);  // 1.5 * 2^23: adding it rounds to integer
     const RowF n = (x * 1.44269504088896341f + round_magic) - round_magic;
@@ -87,8 +49,8 @@ inline RowF row_exp(RowF x) {
     p = p * r + 0.5f;
     p = p * r + 1.0f;
     p = p * r + 1.0f;
-    const RowI exponent = (__builtin_convertvector(n, RowI) + 127) << 23;
-    return p * reinterpret_cast<RowF>(exponent);
+    const RowI exponent = (to_int(n) + 127) << 23;
+    return p * bits_as_float(exponent);
 }
 
 // Screen-space Gaussian as the kernels read it.
@@ -157,8 +119,8 @@ struct SplatInTile {
     bool reaches(float dy, int px0) const {
         return !spills || row_touches_tile(mx, a, b, c, q_max, dy, px0);
     }
-    RowF q(float dy) const { return qa + dy * (qb + c * dy); }
-    RowF alpha(RowF q) const { return row_min(opacity * row_exp(-0.5f * q), kAlphaMax); }
+    SURGSPLAT_INLINE RowF q(float dy) const { return qa + dy * (qb + c * dy); }
+    SURGSPLAT_INLINE RowF alpha(RowF q) const { return row_min(opacity * row_exp(-0.5f * q), kAlphaMax); }
 };
 
 // Gaussians ahead in a tile list whose data is requested from memory before it is composited:

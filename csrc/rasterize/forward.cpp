@@ -51,7 +51,7 @@ void rasterize_forward(const float* means2d, const float* conics, const float* o
                     const RowI use = in & ~stop;
                     const RowF weight = select(use, alpha * trans[row], row_of(0.0f));
                     trans[row] = select(use, t_next, trans[row]);
-                    last[row] = (use & row_of(k + 1)) | (~use & last[row]);
+                    last[row] = select(use, row_of(k + 1), last[row]);
                     if (any_lane(stop)) {
                         live[row] &= ~stop;
                         row_live[row] = any_lane(live[row]);
