@@ -133,6 +133,22 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def system_info() -> dict[str, object]:
+    """What runs the kernels: CPU model, ISA variant in use and those available, threads of
+    torch and of the native kernels, and the OpenMP wait policy."""
+    native = native_module()
+    return {
+        "cpu": cpu_model(),
+        "machine": platform.machine(),
+        "logical_cpus": os.cpu_count(),
+        "isa": None if native is None else native.isa,
+        "available_isas": available_isas(),
+        "torch_threads": torch.get_num_threads(),
+        "native_threads": None if native is None else native.max_threads(),
+        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "(unset)"),
+    }
+
+
 def set_threads(threads: int) -> None:
     """Use `threads` threads in torch and in the native kernels."""
     if threads < 1:
