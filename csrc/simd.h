@@ -16,6 +16,7 @@
 #pragma once
 
 #include <cstdint>
+#include <type_traits>
 
 #if defined(__x86_64__) || defined(_M_X64)
 #include <immintrin.h>
@@ -40,12 +41,13 @@ constexpr int kRegLanes = 4;
 #endif
 constexpr int kRegs = kVecLanes / kRegLanes;
 
-// 16 lanes of T in kRegs registers. Arithmetic with a scalar broadcasts it; comparisons give a
-// mask, all ones in the lanes where they hold.
-template <class T>
+// N registers of T lanes: a full 16-lane vector (N = kRegs), or the registers R0 .. R0 + N - 1
+// of one (part() / set_part(), for work that touches only some of a row's lanes). Arithmetic
+// with a scalar broadcasts it; comparisons give a mask, all ones in the lanes where they hold.
+template <class T, int N = kRegs>
 struct Pack {
     typedef T Reg __attribute__((vector_size(sizeof(T) * kRegLanes)));
-    Reg r[kRegs];
+    Reg r[N];
 
     SURGSPLAT_INLINE T& operator[](int i) { return reinterpret_cast<T*>(r)[i]; }
     SURGSPLAT_INLINE T operator[](int i) const { return reinterpret_cast<const T*>(r)[i]; }
@@ -53,22 +55,22 @@ struct Pack {
     template <class F>
     SURGSPLAT_INLINE static Pack map(F f, const Pack& a, const Pack& b) {
         Pack out;
-        for (int i = 0; i < kRegs; ++i) out.r[i] = f(a.r[i], b.r[i]);
+        for (int i = 0; i < N; ++i) out.r[i] = f(a.r[i], b.r[i]);
         return out;
     }
     SURGSPLAT_INLINE static Pack all(T value) {
         Pack out;
-        for (int i = 0; i < kRegs; ++i) out.r[i] = Reg{} + value;
+        for (int i = 0; i < N; ++i) out.r[i] = Reg{} + value;
         return out;
     }
 
-#define SURGSPLAT_PACK_ARITHMETIC(op)                                                          \
-    SURGSPLAT_INLINE friend Pack operator op(const Pack& a, const Pack& b) {                                   \
-        return map([](Reg x, Reg y) { return x op y; }, a, b);                                \
-    }                                                                                          \
-    SURGSPLAT_INLINE friend Pack operator op(const Pack& a, T b) { return a op all(b); }                        \
-    SURGSPLAT_INLINE friend Pack operator op(T a, const Pack& b) { return all(a) op b; }                        \
-    SURGSPLAT_INLINE Pack& operator op##=(const Pack& b) { return *this = *this op b; }                         \
+#define SURGSPLAT_PACK_ARITHMETIC(op)                                                      \
+    SURGSPLAT_INLINE friend Pack operator op(const Pack& a, const Pack& b) {               \
+        return map([](Reg x, Reg y) { return x op y; }, a, b);                            \
+    }                                                                                      \
+    SURGSPLAT_INLINE friend Pack operator op(const Pack& a, T b) { return a op all(b); }   \
+    SURGSPLAT_INLINE friend Pack operator op(T a, const Pack& b) { return all(a) op b; }   \
+    SURGSPLAT_INLINE Pack& operator op##=(const Pack& b) { return *this = *this op b; }    \
     SURGSPLAT_INLINE Pack& operator op##=(T b) { return *this = *this op all(b); }
     SURGSPLAT_PACK_ARITHMETIC(+)
     SURGSPLAT_PACK_ARITHMETIC(-)
@@ -79,23 +81,27 @@ struct Pack {
     SURGSPLAT_INLINE friend Pack operator-(const Pack& a) { return T(0) - a; }
     SURGSPLAT_INLINE friend Pack operator~(const Pack& a) {
         Pack out;
-        for (int i = 0; i < kRegs; ++i) out.r[i] = ~a.r[i];
+        for (int i = 0; i < N; ++i) out.r[i] = ~a.r[i];
         return out;
     }
     SURGSPLAT_INLINE friend Pack operator<<(const Pack& a, int bits) {
         Pack out;
-        for (int i = 0; i < kRegs; ++i) out.r[i] = a.r[i] << bits;
+        for (int i = 0; i < N; ++i) out.r[i] = a.r[i] << bits;
         return out;
     }
 
-#define SURGSPLAT_PACK_COMPARISON(op)                                                          \
-    SURGSPLAT_INLINE friend Pack<int32_t> operator op(const Pack& a, const Pack& b) {                           \
-        Pack<int32_t> out;                                                                     \
-        for (int i = 0; i < kRegs; ++i) out.r[i] = a.r[i] op b.r[i];                           \
-        return out;                                                                            \
-    }                                                                                          \
-    SURGSPLAT_INLINE friend Pack<int32_t> operator op(const Pack& a, T b) { return a op all(b); }               \
-    SURGSPLAT_INLINE friend Pack<int32_t> operator op(T a, const Pack& b) { return all(a) op b; }
+#define SURGSPLAT_PACK_COMPARISON(op)                                                      \
+    SURGSPLAT_INLINE friend Pack<int32_t, N> operator op(const Pack& a, const Pack& b) {   \
+        Pack<int32_t, N> out;                                                              \
+        for (int i = 0; i < N; ++i) out.r[i] = a.r[i] op b.r[i];                           \
+        return out;                                                                        \
+    }                                                                                      \
+    SURGSPLAT_INLINE friend Pack<int32_t, N> operator op(const Pack& a, T b) {             \
+        return a op all(b);                                                                \
+    }                                                                                      \
+    SURGSPLAT_INLINE friend Pack<int32_t, N> operator op(T a, const Pack& b) {             \
+        return all(a) op b;                                                                \
+    }
     SURGSPLAT_PACK_COMPARISON(<)
     SURGSPLAT_PACK_COMPARISON(<=)
     SURGSPLAT_PACK_COMPARISON(>)
@@ -106,36 +112,69 @@ struct Pack {
 typedef Pack<float> Vec16;
 typedef Pack<int32_t> Vec16i;
 
+// Registers R0 .. R0 + N - 1 of a 16-lane vector, and writing them back.
+template <int R0, int N, class T>
+SURGSPLAT_INLINE Pack<T, N> part(const Pack<T>& x) {
+    static_assert(R0 >= 0 && N >= 1 && R0 + N <= kRegs, "registers out of range");
+    Pack<T, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = x.r[R0 + i];
+    return out;
+}
+template <int R0, int N, class T>
+SURGSPLAT_INLINE void set_part(Pack<T>& x, const Pack<T, N>& value) {
+    for (int i = 0; i < N; ++i) x.r[R0 + i] = value.r[i];
+}
+
+// f(std::integral_constant<int, R0>, std::integral_constant<int, N>) for the registers R0 ..
+// R0 + N - 1 that hold lanes first .. last (0 <= first <= last < kVecLanes): a run-time lane
+// range to a compile-time register range.
+template <int R0 = 0, int N = 1, class F>
+SURGSPLAT_INLINE void with_registers(int first, int last, F&& f) {
+    if constexpr (R0 + N <= kRegs) {
+        if (first / kRegLanes == R0 && last / kRegLanes == R0 + N - 1)
+            f(std::integral_constant<int, R0>{}, std::integral_constant<int, N>{});
+        else if constexpr (R0 + N < kRegs)
+            with_registers<R0, N + 1>(first, last, f);
+        else
+            with_registers<R0 + 1, 1>(first, last, f);
+    }
+}
+
 // yes where mask (lanes all ones or all zeros) is set, else no.
-template <class T>
-SURGSPLAT_INLINE Pack<T> select(const Vec16i& mask, const Pack<T>& yes, const Pack<T>& no) {
-    Pack<T> out;
-    for (int i = 0; i < kRegs; ++i) out.r[i] = mask.r[i] ? yes.r[i] : no.r[i];
+template <class T, int N>
+SURGSPLAT_INLINE Pack<T, N> select(const Pack<int32_t, N>& mask, const Pack<T, N>& yes,
+                                   const Pack<T, N>& no) {
+    Pack<T, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = mask.r[i] ? yes.r[i] : no.r[i];
     return out;
 }
 
 // Lane-wise conversion to int32, rounding toward zero, and back; and the same bits seen as the
 // other type.
-SURGSPLAT_INLINE Vec16i to_int(const Vec16& x) {
-    Vec16i out;
-    for (int i = 0; i < kRegs; ++i) out.r[i] = __builtin_convertvector(x.r[i], Vec16i::Reg);
+template <int N>
+SURGSPLAT_INLINE Pack<int32_t, N> to_int(const Pack<float, N>& x) {
+    Pack<int32_t, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = __builtin_convertvector(x.r[i], Vec16i::Reg);
     return out;
 }
-SURGSPLAT_INLINE Vec16 to_float(const Vec16i& x) {
-    Vec16 out;
-    for (int i = 0; i < kRegs; ++i) out.r[i] = __builtin_convertvector(x.r[i], Vec16::Reg);
+template <int N>
+SURGSPLAT_INLINE Pack<float, N> to_float(const Pack<int32_t, N>& x) {
+    Pack<float, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = __builtin_convertvector(x.r[i], Vec16::Reg);
     return out;
 }
-SURGSPLAT_INLINE Vec16 bits_as_float(const Vec16i& x) {
-    Vec16 out;
-    for (int i = 0; i < kRegs; ++i) out.r[i] = reinterpret_cast<Vec16::Reg>(x.r[i]);
+template <int N>
+SURGSPLAT_INLINE Pack<float, N> bits_as_float(const Pack<int32_t, N>& x) {
+    Pack<float, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = reinterpret_cast<Vec16::Reg>(x.r[i]);
     return out;
 }
 
-// The sum of the 16 lanes: registers added, then one register's lanes pairwise.
-SURGSPLAT_INLINE float lane_sum(const Vec16& x) {
+// The sum of the lanes: registers added, then one register's lanes pairwise.
+template <int N>
+SURGSPLAT_INLINE float lane_sum(const Pack<float, N>& x) {
     Vec16::Reg s = x.r[0];
-    for (int i = 1; i < kRegs; ++i) s += x.r[i];
+    for (int i = 1; i < N; ++i) s += x.r[i];
 #if defined(__AVX512F__)
     return _mm512_reduce_add_ps(reinterpret_cast<__m512>(s));
 #elif defined(__x86_64__) || defined(_M_X64)
@@ -153,9 +192,10 @@ SURGSPLAT_INLINE float lane_sum(const Vec16& x) {
 }
 
 // Whether any lane of `mask` (lanes all ones or all zeros) is set.
-SURGSPLAT_INLINE bool any_lane(const Vec16i& mask) {
+template <int N>
+SURGSPLAT_INLINE bool any_lane(const Pack<int32_t, N>& mask) {
     Vec16i::Reg m = mask.r[0];
-    for (int i = 1; i < kRegs; ++i) m |= mask.r[i];
+    for (int i = 1; i < N; ++i) m |= mask.r[i];
 #if defined(__AVX512F__)
     return _mm512_test_epi32_mask(reinterpret_cast<__m512i>(m), reinterpret_cast<__m512i>(m)) != 0;
 #elif defined(__AVX__)
@@ -170,9 +210,10 @@ SURGSPLAT_INLINE bool any_lane(const Vec16i& mask) {
 // 1 / x lane-wise for normal, positive x, to within about 2 ulp: the hardware's reciprocal
 // estimate refined by a Newton step r' = r (2 - x r), several times cheaper than a division.
 // The AVX-512 estimate has 14 bits, SSE/AVX ones 12; NEON's 8 bits take one more step (vrecps).
-SURGSPLAT_INLINE Vec16 reciprocal(const Vec16& x) {
-    Vec16 r;
-    for (int i = 0; i < kRegs; ++i) {
+template <int N>
+SURGSPLAT_INLINE Pack<float, N> reciprocal(const Pack<float, N>& x) {
+    Pack<float, N> r;
+    for (int i = 0; i < N; ++i) {
 #if defined(__AVX512F__)
         r.r[i] = reinterpret_cast<Vec16::Reg>(_mm512_rcp14_ps(reinterpret_cast<__m512>(x.r[i])));
 #elif defined(__AVX__)

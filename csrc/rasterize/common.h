@@ -33,23 +33,33 @@ SURGSPLAT_INLINE RowF lane_offsets() {
     return lanes;
 }
 
-SURGSPLAT_INLINE RowF row_min(RowF x, float bound) { return select(x > bound, row_of(bound), x); }
+// A whole row (N = kRegs) or the registers of it that a Gaussian reaches (simd.h, part()).
+template <int N>
+using RowPart = Pack<float, N>;
+template <int N>
+using RowPartI = Pack<int32_t, N>;
+
+template <int N>
+SURGSPLAT_INLINE RowPart<N> row_min(RowPart<N> x, float bound) {
+    return select(x > bound, RowPart<N>::all(bound), x);
+}
 
 // exp(x) for x <= 0, lane-wise: x = n ln2 + r with |r| <= ln2 / 2, exp(r) by its degree-6
 // Taylor polynomial (relative error < 2e-7), 2^n built in the exponent bits.
-SURGSPLAT_INLINE RowF row_exp(RowF x) {
-    x = select(x < -87.0f, row_of(-87.0f), x);
-    const RowF round_magic = row_of(12582912.0f);  // 1.5 * 2^23: adding it rounds to integer
-    const RowF n = (x * 1.44269504088896341f + round_magic) - round_magic;
-    const RowF r = x - n * 0.693145751953125f - n * 1.42860682030941723e-06f;
-    RowF p = row_of(1.0f / 720.0f);
+template <int N>
+SURGSPLAT_INLINE RowPart<N> row_exp(RowPart<N> x) {
+    x = select(x < -87.0f, RowPart<N>::all(-87.0f), x);
+    const float round_magic = 12582912.0f;  // 1.5 * 2^23: adding it rounds to integer
+    const RowPart<N> n = (x * 1.44269504088896341f + round_magic) - round_magic;
+    const RowPart<N> r = x - n * 0.693145751953125f - n * 1.42860682030941723e-06f;
+    RowPart<N> p = RowPart<N>::all(1.0f / 720.0f);
     p = p * r + 1.0f / 120.0f;
     p = p * r + 1.0f / 24.0f;
     p = p * r + 1.0f / 6.0f;
     p = p * r + 0.5f;
     p = p * r + 1.0f;
     p = p * r + 1.0f;
-    const RowI exponent = (to_int(n) + 127) << 23;
+    const RowPartI<N> exponent = (to_int(n) + 127) << 23;
     return p * bits_as_float(exponent);
 }
 
@@ -100,6 +110,7 @@ struct SplatInTile {
     float mx, my, a, b, c, opacity, q_max;
     RowF dx, qa, qb;   // per lane: dx, a dx^2 and 2 b dx, so that q = qa + dy (qb + c dy)
     int row0, row1;    // the tile rows its alpha box covers
+    int lane0, lane1;  // the tile columns (lanes) its alpha box covers
     bool spills;       // its box spills over the tile's sides: some rows may miss the tile
 
     SplatInTile(const float* means2d, const float* conics, const float* opacities,
@@ -112,6 +123,8 @@ struct SplatInTile {
         qb = 2.0f * b * dx;
         row0 = box.y0 - py0 > 0 ? box.y0 - py0 : 0;
         row1 = box.y1 - py0 < kTile - 1 ? box.y1 - py0 : kTile - 1;
+        lane0 = box.x0 - px0 > 0 ? box.x0 - px0 : 0;
+        lane1 = box.x1 - px0 < kTile - 1 ? box.x1 - px0 : kTile - 1;
         spills = box.x0 < px0 || box.x1 >= px0 + kTile;
     }
 
@@ -119,8 +132,23 @@ struct SplatInTile {
     bool reaches(float dy, int px0) const {
         return !spills || row_touches_tile(mx, a, b, c, q_max, dy, px0);
     }
-    SURGSPLAT_INLINE RowF q(float dy) const { return qa + dy * (qb + c * dy); }
-    SURGSPLAT_INLINE RowF alpha(RowF q) const { return row_min(opacity * row_exp(-0.5f * q), kAlphaMax); }
+    // q and alpha in the registers R0 .. R0 + N - 1 of tile row offset dy.
+    template <int R0, int N>
+    SURGSPLAT_INLINE RowPart<N> q(float dy) const {
+        return part<R0, N>(qa) + dy * (part<R0, N>(qb) + c * dy);
+    }
+    template <int N>
+    SURGSPLAT_INLINE RowPart<N> alpha(RowPart<N> q) const {
+        return row_min(opacity * row_exp(-0.5f * q), kAlphaMax);
+    }
+
+    // f(R0, N) (std::integral_constant) for the registers holding lanes lane0 .. lane1: narrow
+    // Gaussians skip the registers of the row their box does not reach, where alpha is below
+    // kAlphaMin anyway (without AVX-512: half of a row's work for boxes within 8 columns).
+    template <class F>
+    SURGSPLAT_INLINE void with_reached_registers(F&& f) const {
+        with_registers(lane0, lane1, f);
+    }
 };
 
 // Gaussians ahead in a tile list whose data is requested from memory before it is composited:
