@@ -69,3 +69,26 @@ def test_probe_counts_work_and_set_threads(native_isa):
         assert module.max_threads() == 1
     finally:
         native.set_threads(before)
+
+
+@needs_native
+def test_a_build_with_only_the_portable_variant_uses_it(monkeypatch):
+    """As after `SURGSPLAT_ISA_TARGETS=baseline`: only the portable module exists."""
+    import sys
+
+    import surgsplat.render
+
+    portable = native.available_isas()[-1]
+    for isa in native.ISAS:
+        if isa != portable:
+            monkeypatch.setitem(sys.modules, f"surgsplat.render._native_{isa}", None)
+            monkeypatch.delattr(surgsplat.render, f"_native_{isa}", raising=False)
+    native.isa_unavailable.cache_clear()
+    native.use_isa(None)
+    try:
+        assert native.available_isas() == [portable]
+        assert native.active_isa() == portable
+    finally:
+        monkeypatch.undo()
+        native.isa_unavailable.cache_clear()
+        native.use_isa(None)

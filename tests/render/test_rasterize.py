@@ -138,6 +138,7 @@ def test_missing_native_module_falls_back_with_one_warning(monkeypatch):
     import surgsplat.render
     native_loader.native_module.cache_clear()
     native_loader._portable.cache_clear()
+    native_loader.isa_unavailable.cache_clear()
     for isa in native_loader.ISAS:
         monkeypatch.setitem(sys.modules, f"surgsplat.render._native_{isa}", None)
         monkeypatch.delattr(surgsplat.render, f"_native_{isa}", raising=False)
@@ -148,5 +149,6 @@ def test_missing_native_module_falls_back_with_one_warning(monkeypatch):
             resolve_backend("rasterize", "native", [torch.zeros(1)])
     finally:
         monkeypatch.undo()
-        native_loader.native_module.cache_clear()
-        native_loader._portable.cache_clear()
+        for cached in (native_loader.native_module, native_loader._portable,
+                       native_loader.isa_unavailable):
+            cached.cache_clear()
