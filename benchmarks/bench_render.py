@@ -1,93 +1,120 @@
-"""Rendering-core benchmark: forward and forward+backward rasterisation at 640x512 for 10k, 100k
-and 300k tissue-like Gaussians (C = 3 and 8 channels), the speed-up over the PyTorch reference,
-and one full static training step at 100k Gaussians.
+"""Rendering-core benchmark: forward and forward+backward rasterisation at 640x512 of 10k, 100k
+and 300k tissue-like Gaussians, and one static training step at 100k, for every ISA variant of
+the native kernels this machine runs, each against an in-process limit probe.
 
-    python benchmarks/bench_render.py [--json] [--repeats N]
+    python benchmarks/bench_render.py [--isa avx2 ...] [--repeats 5] [--out FILE] [--json]
 
-evals_per_s counts (Gaussian, pixel) pairs in the 16x16 tiles each Gaussian is binned to, per
-second of forward rasterisation (an upper bound of the per-pixel Gaussian evaluations).
+Every case runs in its own process (so one case's allocations and threads do not disturb the
+next) and alternates, `repeats` times, a call of the native module's composite_probe (a plain
+16-lane compositing loop compiled with the same flags as the kernels: the limit of its ISA on
+this machine now) with the measured call; medians are reported. Since shared machines run the
+same command at different speeds from hour to hour, the figure that holds across runs and
+machines is the efficiency: evals_per_s / probe_evals_per_s, where evals_per_s counts the
+(Gaussian, pixel) pairs of the 16x16 tiles each Gaussian is binned to, per second (for fwd+bwd,
+per second of forward plus backward). Results go to benchmarks/results/bench_render-<cpu>.json,
+which benchmarks/readme_tables.py turns into the README's table.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import resource
+import statistics
+import subprocess
 import sys
 import time
+from datetime import datetime, timezone
 from pathlib import Path
 
+import surgsplat  # noqa: F401  (before torch: sets surgsplat's OpenMP wait policy)
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from surface_scene import surface_gaussians  # noqa: E402
 
-from surgsplat.render.native import native_module  # noqa: E402
+from surgsplat.render import native  # noqa: E402
 from surgsplat.render.project import project  # noqa: E402
 from surgsplat.render.rasterize import rasterize  # noqa: E402
 from surgsplat.render.render import render  # noqa: E402
 
 WIDTH, HEIGHT = 640, 512
+RESULTS = Path(__file__).resolve().parent / "results"
+RASTER_CASES = [(10_000, 3), (100_000, 3), (100_000, 8), (300_000, 3)]
+STEP_GAUSSIANS = 100_000
+PROBE_TILES, PROBE_GAUSSIANS = 512, 256  # about 34M evaluations per probe call
 
 
 def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def best_time(fn, repeats: int) -> float:
-    """Seconds of the fastest of `repeats` calls after one warm-up (least disturbed by noise)."""
+def seconds(fn) -> float:
+    started = time.perf_counter()
     fn()
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
+    return time.perf_counter() - started
+
+
+def interleaved(cases: dict, channels: int, repeats: int) -> dict[str, float]:
+    """Median seconds of each callable in `cases` and median probe evaluations per second, the
+    probe run before each round of the cases (after one warm-up round)."""
+    module = native.native_module()
+
+    def probe():
+        module.composite_probe(PROBE_TILES, PROBE_GAUSSIANS, channels)
+
+    for fn in (probe, *cases.values()):
         fn()
-        times.append(time.perf_counter() - started)
-    return min(times)
+    times: dict[str, list[float]] = {name: [] for name in ("probe", *cases)}
+    for _ in range(repeats):
+        times["probe"].append(seconds(probe))
+        for name, fn in cases.items():
+            times[name].append(seconds(fn))
+    medians = {name: statistics.median(t) for name, t in times.items()}
+    medians["probe_evals_per_s"] = PROBE_TILES * PROBE_GAUSSIANS * 256 / medians.pop("probe")
+    return medians
 
 
-def screen_inputs(num: int, channels: int, width: int = WIDTH, height: int = HEIGHT):
-    scene = surface_gaussians(num, channels, width, height, focal=569.4682 * width / WIDTH)
-    proj = project(scene.means, scene.scales, scene.quats, scene.K, width, height)
+def screen_inputs(num: int, channels: int):
+    scene = surface_gaussians(num, channels, WIDTH, HEIGHT)
+    proj = project(scene.means, scene.scales, scene.quats, scene.K, WIDTH, HEIGHT)
     leaves = [t.detach().clone().requires_grad_() for t in
               (proj.means2d, proj.conics, scene.opacities, scene.features)]
     return leaves, proj.depths.detach(), proj.radii
 
 
-def raster_times(num: int, channels: int, backend: str, repeats: int,
-                 width: int = WIDTH, height: int = HEIGHT) -> tuple[float, float]:
-    leaves, depths, radii = screen_inputs(num, channels, width, height)
-
-    def forward():
-        with torch.no_grad():
-            rasterize(*leaves, depths, radii, width, height, backend=backend)
-
-    def forward_backward():
-        image, alpha = rasterize(*leaves, depths, radii, width, height, backend=backend)
-        (image.sum() + alpha.sum()).backward()
-
-    return best_time(forward, repeats), best_time(forward_backward, repeats)
-
-
-def tile_pairs(num: int, channels: int) -> int:
-    leaves, depths, radii = screen_inputs(num, channels)
-    arrays = [t.detach().contiguous().numpy() for t in leaves]
-    bins = native_module().rasterize_forward(
-        *arrays, depths.contiguous().numpy(), radii.numpy(), WIDTH, HEIGHT,
-        torch.empty(HEIGHT, WIDTH, channels).numpy(), torch.empty(HEIGHT, WIDTH).numpy(),
-        torch.empty(HEIGHT, WIDTH, dtype=torch.int32).numpy())
+def tile_pairs(leaves, depths, radii) -> int:
+    """(Gaussian, pixel) pairs of the tiles the Gaussians are binned to."""
+    channels = leaves[3].shape[1]
+    bins = native.native_module().rasterize_forward(
+        *(t.detach().contiguous().numpy() for t in leaves), depths.contiguous().numpy(),
+        radii.numpy(), WIDTH, HEIGHT, torch.empty(HEIGHT, WIDTH, channels).numpy(),
+        torch.empty(HEIGHT, WIDTH).numpy(), torch.empty(HEIGHT, WIDTH, dtype=torch.int32).numpy())
     return bins.num_overlaps * 256
 
 
-def reference_speedup(repeats: int) -> tuple[dict, float]:
-    """Native vs reference forward+backward at a size the dense reference can do."""
-    num, width, height = 2000, 160, 128
-    _, ref = raster_times(num, 3, "reference", max(1, repeats // 3), width, height)
-    _, nat = raster_times(num, 3, "native", repeats, width, height)
-    return {"gaussians": num, "width": width, "height": height,
-            "reference_fwdbwd_ms": ref * 1e3, "native_fwdbwd_ms": nat * 1e3}, ref / nat
+def raster_case(num: int, channels: int, repeats: int) -> dict:
+    leaves, depths, radii = screen_inputs(num, channels)
+
+    def forward():
+        with torch.no_grad():
+            rasterize(*leaves, depths, radii, WIDTH, HEIGHT, backend="native")
+
+    def forward_backward():
+        image, alpha = rasterize(*leaves, depths, radii, WIDTH, HEIGHT, backend="native")
+        (image.sum() + alpha.sum()).backward()
+
+    t = interleaved({"fwd": forward, "fwdbwd": forward_backward}, channels, repeats)
+    pairs = tile_pairs(leaves, depths, radii)
+    return {"gaussians": num, "channels": channels, "fwd_ms": t["fwd"] * 1e3,
+            "fwdbwd_ms": t["fwdbwd"] * 1e3, "fps": 1.0 / t["fwd"],
+            "evals_per_s": pairs / t["fwd"], "probe_evals_per_s": t["probe_evals_per_s"],
+            "efficiency_fwd": pairs / t["fwd"] / t["probe_evals_per_s"],
+            "efficiency_fwdbwd": pairs / t["fwdbwd"] / t["probe_evals_per_s"]}
 
 
-def training_step_ms(num: int, repeats: int) -> float:
+def step_case(num: int, repeats: int) -> dict:
     """Projection + rasterisation forward and backward + Adam over all Gaussian parameters."""
     scene = surface_gaussians(num, 3)
     params = {
@@ -109,44 +136,68 @@ def training_step_ms(num: int, repeats: int) -> float:
         loss.backward()
         optimizer.step()
 
-    return best_time(step, repeats) * 1e3
+    t = interleaved({"step": step}, 3, repeats)
+    return {"gaussians": num, "channels": 3, "step_ms": t["step"] * 1e3,
+            "probe_evals_per_s": t["probe_evals_per_s"]}
+
+
+def run_case(case: str, isa: str, repeats: int) -> dict:
+    """One case in this process: `raster:N:C` or `step:N`."""
+    native.use_isa(isa)
+    kind, *numbers = case.split(":")
+    sizes = [int(x) for x in numbers]
+    row = raster_case(*sizes, repeats) if kind == "raster" else step_case(*sizes, repeats)
+    return {"isa": isa, "case": kind, **row, "peak_rss_mb": peak_rss_mb()}
+
+
+def case_in_subprocess(case: str, isa: str, repeats: int) -> dict:
+    command = [sys.executable, __file__, "--case", case, "--isa", isa, "--repeats", str(repeats)]
+    done = subprocess.run(command, capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def results_path(benchmark: str, cpu: str) -> Path:
+    """benchmarks/results/<benchmark>-<cpu model, lower case, dashes>.json"""
+    slug = re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-")
+    return RESULTS / f"{benchmark}-{slug}.json"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="one JSON object per configuration")
-    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--isa", nargs="*", help="ISA variants (default: every one available)")
+    parser.add_argument("--repeats", type=int, default=5, help="measured rounds per case (>= 5 "
+                        "for results to keep)")
+    parser.add_argument("--out", type=Path, help="JSON file (default: "
+                        "benchmarks/results/bench_render-<cpu>.json)")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON")
+    parser.add_argument("--case", help=argparse.SUPPRESS)  # one case, in a child process
     args = parser.parse_args()
-    if native_module() is None:
+    if native.native_module() is None:
         sys.exit("the native module is not built: run `make install` first")
-    torch.set_num_threads(2)
-    comparison, speedup = reference_speedup(args.repeats)
-    rows = []
-    for num in (10_000, 100_000, 300_000):
-        for channels in (3, 8):
-            fwd, fwdbwd = raster_times(num, channels, "native", args.repeats)
-            rows.append({"gaussians": num, "channels": channels, "width": WIDTH,
-                         "height": HEIGHT, "fwd_ms": fwd * 1e3, "fwdbwd_ms": fwdbwd * 1e3,
-                         "fps": 1.0 / fwd, "evals_per_s": tile_pairs(num, channels) / fwd,
-                         "peak_rss_mb": peak_rss_mb()})
-    rows[0]["speedup_vs_reference"] = speedup
-    rows[0]["reference_comparison"] = comparison
-    rows.append({"gaussians": 100_000, "channels": 3, "width": WIDTH, "height": HEIGHT,
-                 "step_ms": training_step_ms(100_000, args.repeats), "peak_rss_mb": peak_rss_mb()})
-    if args.json:
-        for row in rows:
-            print(json.dumps(row))
+    if args.case:
+        print(json.dumps(run_case(args.case, args.isa[0], args.repeats)))
         return
-    print(f"{'gaussians':>9} {'C':>2} {'fwd ms':>8} {'fps':>6} {'fwd+bwd ms':>10} "
-          f"{'evals/s':>9} {'RSS MB':>7}")
-    for row in rows[:-1]:
-        print(f"{row['gaussians']:>9} {row['channels']:>2} {row['fwd_ms']:>8.1f} {row['fps']:>6.1f} "
-              f"{row['fwdbwd_ms']:>10.1f} {row['evals_per_s']:>9.2e} {row['peak_rss_mb']:>7.0f}")
-    print(f"training step (100k Gaussians, project + raster fwd/bwd + Adam): "
-          f"{rows[-1]['step_ms']:.1f} ms")
-    print(f"native vs PyTorch reference, fwd+bwd, {comparison['gaussians']} Gaussians at "
-          f"{comparison['width']}x{comparison['height']}: {comparison['reference_fwdbwd_ms']:.0f} ms "
-          f"vs {comparison['native_fwdbwd_ms']:.2f} ms = {speedup:.0f}x")
+    isas = args.isa or native.available_isas()
+    cases = [f"raster:{n}:{c}" for n, c in RASTER_CASES] + [f"step:{STEP_GAUSSIANS}"]
+    rows = []
+    for isa in isas:
+        for case in cases:
+            rows.append(case_in_subprocess(case, isa, args.repeats))
+            print(json.dumps(rows[-1]), file=sys.stderr)
+    info = native.system_info()
+    report = {"benchmark": "bench_render", "cpu": info["cpu"], "system": info,
+              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+              "width": WIDTH, "height": HEIGHT, "repeats": args.repeats, "rows": rows}
+    out = args.out or results_path("bench_render", info["cpu"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=1) + "\n")
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        from readme_tables import render_table
+
+        print(render_table(report))
+        print(f"written to {out}")
 
 
 if __name__ == "__main__":

@@ -25,3 +25,4 @@ void bind_rasterize(nanobind::module_& m);
 void bind_hexplane(nanobind::module_& m);
 void bind_blur(nanobind::module_& m);
 void bind_project(nanobind::module_& m);
+void bind_probe(nanobind::module_& m);

@@ -1,17 +1,60 @@
-// The `_native` Python module: each op folder of csrc/ registers its functions here.
+// One ISA variant of the native Python module, `_native_<isa>`: each op folder of csrc/ registers
+// its functions here. CMakeLists.txt compiles all of csrc/ once per target ISA and defines
+// SURGSPLAT_ISA (the variant's name) and SURGSPLAT_MODULE (its module name); which variant runs is
+// chosen in surgsplat/render/native.py from cpu_isas() of the portable variant.
 #include <omp.h>
+
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include <string>
+#include <vector>
 
 #include "bindings.h"
 
+#if !defined(SURGSPLAT_ISA) || !defined(SURGSPLAT_MODULE)
+#error "CMakeLists.txt defines SURGSPLAT_ISA and SURGSPLAT_MODULE for each ISA variant"
+#endif
+
 namespace nb = nanobind;
 
-NB_MODULE(_native, m) {
-    m.doc() = "surgsplat native CPU kernels (C++17, OpenMP)";
+namespace {
+
+// The ISA variants this CPU (and its operating system) can run, fastest first. Only ever run by
+// the portable variant, compiled for the architecture's baseline.
+std::vector<std::string> cpu_isas() {
+#if defined(__x86_64__) || defined(_M_X64)
+    __builtin_cpu_init();
+    std::vector<std::string> isas;
+    if (__builtin_cpu_supports("x86-64-v4")) isas.push_back("avx512");
+    if (__builtin_cpu_supports("x86-64-v3")) isas.push_back("avx2");
+    isas.push_back("baseline");
+    return isas;
+#else
+    return {"neon"};
+#endif
+}
+
+void set_threads(int threads) {
+    if (threads < 1) throw std::invalid_argument("threads: expected at least 1");
+    omp_set_num_threads(threads);
+}
+
+}  // namespace
+
+#define SURGSPLAT_NB_MODULE(name, m) NB_MODULE(name, m)
+SURGSPLAT_NB_MODULE(SURGSPLAT_MODULE, m) {
+    m.doc() = "surgsplat native CPU kernels (C++17, OpenMP), variant " SURGSPLAT_ISA;
     // Autograd graphs alive at interpreter exit may still hold kernel state; that is no leak.
     nb::set_leak_warnings(false);
+    m.attr("isa") = SURGSPLAT_ISA;
+    m.def("cpu_isas", &cpu_isas, "ISA variants this CPU can run, fastest first.");
     m.def("max_threads", [] { return omp_get_max_threads(); }, "OpenMP threads the kernels use.");
+    m.def("set_threads", &set_threads, nb::arg("threads"),
+          "Threads of the kernels' parallel regions started from the calling thread.");
     bind_rasterize(m);
     bind_hexplane(m);
     bind_blur(m);
     bind_project(m);
+    bind_probe(m);
 }

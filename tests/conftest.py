@@ -23,3 +23,17 @@ def small_phantom(tmp_path_factory) -> Path:
 
     return generate_phantom(PhantomConfig(preset="small", motion="pulling"),
                             tmp_path_factory.mktemp("phantom") / "small")
+
+
+@pytest.fixture(params=["avx512", "avx2", "baseline", "neon"])
+def native_isa(request) -> str:
+    """Runs the test once per ISA variant of the native kernels, with that variant in use;
+    skips the variants this machine lacks (not built, or the CPU cannot run them)."""
+    from surgsplat.render import native
+
+    reason = native.isa_unavailable(request.param)
+    if reason is not None:
+        pytest.skip(reason)
+    native.use_isa(request.param)
+    yield request.param
+    native.use_isa(None)

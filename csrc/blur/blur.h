@@ -14,14 +14,16 @@
 #include <cstring>
 #include <vector>
 
+#include "simd.h"
+
 namespace surgsplat {
 
 namespace blur_detail {
 
-// 16 float lanes; GCC/Clang vector extensions compile it to one AVX-512 register, two AVX2 or
-// four SSE registers. Accumulators are explicit vectors so they stay in registers.
-typedef float Lanes __attribute__((vector_size(64)));
-constexpr int64_t kLanes = 16;
+// 16 float lanes (simd.h): one AVX-512 register, two AVX2 or four SSE / NEON registers.
+// Accumulators are explicit vectors so they stay in registers.
+typedef Vec16 Lanes;
+constexpr int64_t kLanes = kVecLanes;
 constexpr int64_t kChunk = 2 * kLanes;  // columns per accumulator block
 
 inline int64_t round_up(int64_t n) { return (n + kChunk - 1) / kChunk * kChunk; }

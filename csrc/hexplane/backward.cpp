@@ -14,17 +14,6 @@
 namespace surgsplat {
 namespace {
 
-// Pairwise sum of the lanes (upper half onto lower half, four times).
-inline float lane_sum(Lanes x) {
-    typedef float Half __attribute__((vector_size(2 * kLanes)));
-    typedef float Quarter __attribute__((vector_size(kLanes)));
-    const Half h = __builtin_shufflevector(x, x, 0, 1, 2, 3, 4, 5, 6, 7) +
-                   __builtin_shufflevector(x, x, 8, 9, 10, 11, 12, 13, 14, 15);
-    const Quarter q = __builtin_shufflevector(h, h, 0, 1, 2, 3) +
-                      __builtin_shufflevector(h, h, 4, 5, 6, 7);
-    return (q[0] + q[2]) + (q[1] + q[3]);
-}
-
 // Gradients of one slab (scale s, chunk c) for the points of a block, added to the thread's
 // plane-gradient buffer `mine` and to grad_coords.
 void slab_backward(const Slabs& slabs, int64_t s, int64_t c, const Lanes* values, Lanes* mine,

@@ -9,8 +9,11 @@
 
 #include <array>
 #include <cstdint>
+#include <cstring>
 #include <memory>
 #include <vector>
+
+#include "simd.h"
 
 namespace surgsplat {
 
@@ -22,10 +25,10 @@ constexpr int kHeightAxis[kPlanesPerScale] = {1, 2, 2, 3, 3, 3};
 constexpr int kAxes = 4;         // coordinates per point: x, y, z, t
 constexpr int kSpaceAxes = 3;    // coordinates that receive gradients: x, y, z
 
-// 16 lanes: one AVX-512 register, two AVX2 or four SSE registers.
-constexpr int kLanes = 16;
-typedef float Lanes __attribute__((vector_size(4 * kLanes)));
-typedef int32_t LanesI __attribute__((vector_size(4 * kLanes)));
+// 16 lanes (simd.h): one AVX-512 register, two AVX2 or four SSE / NEON registers.
+constexpr int kLanes = kVecLanes;
+typedef Vec16 Lanes;
+typedef Vec16i LanesI;
 
 // A feature plane as the caller holds it: [features, height, width], C-contiguous.
 struct PlaneView {
@@ -79,16 +82,18 @@ void block_cells(const Slabs& slabs, int64_t scale, const float* coords, int64_t
                  int64_t count, BlockCells& cells);
 
 // The first `count` (<= kLanes) floats of `source` as Lanes, zero beyond; and the reverse.
-typedef float UnalignedLanes __attribute__((vector_size(4 * kLanes), aligned(4), may_alias));
 inline Lanes load_lanes(const float* source, int64_t count) {
-    if (count == kLanes) return *reinterpret_cast<const UnalignedLanes*>(source);
     Lanes lanes{};
+    if (count == kLanes) {
+        std::memcpy(&lanes, source, sizeof lanes);
+        return lanes;
+    }
     for (int64_t f = 0; f < count; ++f) lanes[f] = source[f];
     return lanes;
 }
 inline void store_lanes(float* target, Lanes lanes, int64_t count) {
     if (count == kLanes) {
-        *reinterpret_cast<UnalignedLanes*>(target) = lanes;
+        std::memcpy(target, &lanes, sizeof lanes);
         return;
     }
     for (int64_t f = 0; f < count; ++f) target[f] = lanes[f];

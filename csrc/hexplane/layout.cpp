@@ -25,46 +25,23 @@ AxisLanes axis_lanes(Lanes coord, int64_t nodes) {
     const float last = static_cast<float>(nodes - 1);
     const Lanes u = (coord + 1.0f) * half_span;
     const LanesI inside = (u > 0.0f) & (u < last);
-    const Lanes clamped = inside ? u : (u >= last ? Lanes{} + last : Lanes{});
+    const Lanes clamped = select(inside, u, select(u >= last, Lanes::all(last), Lanes{}));
     AxisLanes axis;
-    const LanesI truncated = __builtin_convertvector(clamped, LanesI);
+    const LanesI truncated = to_int(clamped);
     const int32_t top = static_cast<int32_t>(nodes - 2);
-    axis.lo = truncated > top ? LanesI{} + top : truncated;
-    axis.frac = clamped - __builtin_convertvector(axis.lo, Lanes);
-    axis.dfrac = inside ? Lanes{} + half_span : Lanes{};
+    axis.lo = select(truncated > top, LanesI::all(top), truncated);
+    axis.frac = clamped - to_float(axis.lo);
+    axis.dfrac = select(inside, Lanes::all(half_span), Lanes{});
     return axis;
 }
 
 // The x, y, z and t coordinates of points first .. first + count - 1 (count <= kLanes) of
-// coords [n, 4], one point per lane (zero beyond count). A full block is deinterleaved in
-// registers: writing lanes one by one and reading them back as a vector stalls.
+// coords [n, 4], one point per lane (zero beyond count), transposed through a small array.
 void load_coordinates(const float* coords, int64_t first, int64_t count, Lanes (&axis)[kAxes]) {
-    if (count < kLanes) {
-        for (int a = 0; a < kAxes; ++a) {
-            axis[a] = Lanes{};
-            for (int64_t l = 0; l < count; ++l) axis[a][l] = coords[(first + l) * kAxes + a];
-        }
-        return;
-    }
-    Lanes v[kAxes];  // v[j]: points first + 4j .. first + 4j + 3, (x, y, z, t) each
-    std::memcpy(v, coords + first * kAxes, sizeof(v));
-    // per pair of vectors, axes 0 and 1 (or 2 and 3) of their 8 points: [a of 8 | b of 8]
-    const Lanes xy01 = __builtin_shufflevector(v[0], v[1], 0, 4, 8, 12, 16, 20, 24, 28,
-                                               1, 5, 9, 13, 17, 21, 25, 29);
-    const Lanes xy23 = __builtin_shufflevector(v[2], v[3], 0, 4, 8, 12, 16, 20, 24, 28,
-                                               1, 5, 9, 13, 17, 21, 25, 29);
-    const Lanes zt01 = __builtin_shufflevector(v[0], v[1], 2, 6, 10, 14, 18, 22, 26, 30,
-                                               3, 7, 11, 15, 19, 23, 27, 31);
-    const Lanes zt23 = __builtin_shufflevector(v[2], v[3], 2, 6, 10, 14, 18, 22, 26, 30,
-                                               3, 7, 11, 15, 19, 23, 27, 31);
-    axis[0] = __builtin_shufflevector(xy01, xy23, 0, 1, 2, 3, 4, 5, 6, 7,
-                                      16, 17, 18, 19, 20, 21, 22, 23);
-    axis[1] = __builtin_shufflevector(xy01, xy23, 8, 9, 10, 11, 12, 13, 14, 15,
-                                      24, 25, 26, 27, 28, 29, 30, 31);
-    axis[2] = __builtin_shufflevector(zt01, zt23, 0, 1, 2, 3, 4, 5, 6, 7,
-                                      16, 17, 18, 19, 20, 21, 22, 23);
-    axis[3] = __builtin_shufflevector(zt01, zt23, 8, 9, 10, 11, 12, 13, 14, 15,
-                                      24, 25, 26, 27, 28, 29, 30, 31);
+    alignas(64) float lanes[kAxes][kLanes] = {};
+    for (int64_t l = 0; l < count; ++l)
+        for (int a = 0; a < kAxes; ++a) lanes[a][l] = coords[(first + l) * kAxes + a];
+    for (int a = 0; a < kAxes; ++a) std::memcpy(&axis[a], lanes[a], sizeof(Lanes));
 }
 
 template <typename V, typename T>

@@ -1,5 +1,5 @@
 // Backward compositing: per tile, Gaussians back to front, recovering each pixel's transmittance
-// by division (T_before = T_after / (1 - alpha)) and the colour behind it incrementally.
+// by a reciprocal (T_before = T_after / (1 - alpha), simd.h) and the colour behind it incrementally.
 // Gradients are summed per thread, then reduced, so no atomics are needed.
 //
 // With w_i = alpha_i T_i, the image is C = sum_i w_i f_i and the alpha map A = sum_i w_i, so
@@ -73,61 +73,75 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                     __builtin_prefetch(mine + ahead * stride, 1);
                 }
                 const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
-                const float a = s.a, b = s.b, c = s.c, opacity = s.opacity;
-                const RowF dx = s.dx;
+                const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;
                 const float* feature = features + g * channels;
-                RowF g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, abs_x{}, abs_y{};
-                std::fill(grad_f.begin(), grad_f.end(), row_of(0.0f));
-                bool touched = false;
-                for (int row = s.row0; row <= s.row1; ++row) {
-                    if (k >= row_last[row]) continue;
-                    const float dy = py0 + row + 0.5f - s.my;
-                    if (!s.reaches(dy, px0)) continue;
-                    touched = true;
-                    const RowF q = s.q(dy);
-                    const RowF raw = s.alpha(q);
-                    const RowI in = (row_of(k) < last[row]) & (raw >= kAlphaMin) & (q >= 0.0f);
-                    const RowF alpha = select(in, raw, row_of(0.0f));
-                    const RowF t_before = trans[row] * row_reciprocal(1.0f - alpha);
-                    const RowF weight = alpha * t_before;
-                    RowF d_colour{};
-                    for (int64_t ch = 0; ch < channels; ++ch) {
-                        const RowF grad = grad_in[ch * kTile + row];
-                        RowF& back = behind[ch * kTile + row];
-                        const RowF f = row_of(feature[ch]);
-                        grad_f[ch] += weight * grad;
-                        d_colour += (f - back) * grad;
-                        back += alpha * (f - back);
+                s.with_reached_registers([&](auto first_register, auto registers) {
+                    constexpr int R0 = decltype(first_register)::value;
+                    constexpr int N = decltype(registers)::value;
+                    const RowPart<N> dx = part<R0, N>(s.dx);
+                    RowPart<N> g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, abs_x{}, abs_y{};
+                    for (RowF& sum : grad_f) set_part<R0, N>(sum, RowPart<N>{});
+                    bool touched = false;
+                    for (int row = s.row0; row <= s.row1; ++row) {
+                        if (k >= row_last[row]) continue;
+                        const float dy = py0 + row + 0.5f - s.my;
+                        if (!s.reaches(dy, px0)) continue;
+                        touched = true;
+                        const RowPart<N> q = s.template q<R0, N>(dy);
+                        const RowPart<N> raw = s.alpha(q);
+                        const RowPartI<N> in = (k < part<R0, N>(last[row])) &
+                                               (raw >= kAlphaMin) & (q >= 0.0f);
+                        const RowPart<N> alpha = select(in, raw, RowPart<N>{});
+                        // lanes without this Gaussian keep their transmittance exactly
+                        const RowPart<N> t_after = part<R0, N>(trans[row]);
+                        const RowPart<N> t_before =
+                            select(in, t_after * reciprocal(1.0f - alpha), t_after);
+                        const RowPart<N> weight = alpha * t_before;
+                        RowPart<N> d_colour{};
+                        for (int64_t ch = 0; ch < channels; ++ch) {
+                            const RowPart<N> grad = part<R0, N>(grad_in[ch * kTile + row]);
+                            RowF& behind_row = behind[ch * kTile + row];
+                            const RowPart<N> back = part<R0, N>(behind_row);
+                            const float f = feature[ch];
+                            set_part<R0, N>(grad_f[ch], part<R0, N>(grad_f[ch]) + weight * grad);
+                            d_colour += (f - back) * grad;
+                            set_part<R0, N>(behind_row, back + alpha * (f - back));
+                        }
+                        const RowPart<N> behind_a = part<R0, N>(behind_alpha[row]);
+                        const RowPart<N> d_alpha =
+                            t_before * (d_colour + (1.0f - behind_a) * part<R0, N>(grad_a[row]));
+                        set_part<R0, N>(behind_alpha[row], behind_a + alpha * (1.0f - behind_a));
+                        set_part<R0, N>(trans[row], t_before);
+                        // alpha = o G with G = exp(-q/2), unless clamped at kAlphaMax (then no
+                        // gradient)
+                        const RowPartI<N> free = in & (alpha < kAlphaMax);
+                        const RowPart<N> d_o =
+                            select(free, alpha * inv_opacity * d_alpha, RowPart<N>{});
+                        const RowPart<N> d_q = select(free, -0.5f * alpha * d_alpha, RowPart<N>{});
+                        const RowPart<N> d_mx = -d_q * (2.0f * a * dx + 2.0f * b * dy);
+                        const RowPart<N> d_my = -d_q * (2.0f * b * dx + 2.0f * c * dy);
+                        g_o += d_o;
+                        g_a += d_q * dx * dx;
+                        g_b += d_q * 2.0f * dx * dy;
+                        g_c += d_q * dy * dy;
+                        g_mx += d_mx;
+                        g_my += d_my;
+                        abs_x += select(d_mx < 0.0f, -d_mx, d_mx);
+                        abs_y += select(d_my < 0.0f, -d_my, d_my);
                     }
-                    const RowF d_alpha = t_before * (d_colour + (1.0f - behind_alpha[row]) * grad_a[row]);
-                    behind_alpha[row] += alpha * (1.0f - behind_alpha[row]);
-                    trans[row] = t_before;
-                    // alpha = o G with G = exp(-q/2), unless clamped at kAlphaMax (then no gradient)
-                    const RowI free = in & (alpha < kAlphaMax);
-                    const RowF d_o = select(free, alpha / opacity * d_alpha, row_of(0.0f));
-                    const RowF d_q = select(free, -0.5f * alpha * d_alpha, row_of(0.0f));
-                    const RowF d_mx = -d_q * (2.0f * a * dx + 2.0f * b * dy);
-                    const RowF d_my = -d_q * (2.0f * b * dx + 2.0f * c * dy);
-                    g_o += d_o;
-                    g_a += d_q * dx * dx;
-                    g_b += d_q * 2.0f * dx * dy;
-                    g_c += d_q * dy * dy;
-                    g_mx += d_mx;
-                    g_my += d_my;
-                    abs_x += select(d_mx < 0.0f, -d_mx, d_mx);
-                    abs_y += select(d_my < 0.0f, -d_my, d_my);
-                }
-                if (!touched) continue;
-                float* slot = mine + g * stride;
-                slot[kMx] += lane_sum(g_mx);
-                slot[kMy] += lane_sum(g_my);
-                slot[kA] += lane_sum(g_a);
-                slot[kB] += lane_sum(g_b);
-                slot[kC] += lane_sum(g_c);
-                slot[kOpacity] += lane_sum(g_o);
-                slot[kAbsX] += lane_sum(abs_x);
-                slot[kAbsY] += lane_sum(abs_y);
-                for (int64_t ch = 0; ch < channels; ++ch) slot[kFeatures + ch] += lane_sum(grad_f[ch]);
+                    if (!touched) return;
+                    float* slot = mine + g * stride;
+                    slot[kMx] += lane_sum(g_mx);
+                    slot[kMy] += lane_sum(g_my);
+                    slot[kA] += lane_sum(g_a);
+                    slot[kB] += lane_sum(g_b);
+                    slot[kC] += lane_sum(g_c);
+                    slot[kOpacity] += lane_sum(g_o);
+                    slot[kAbsX] += lane_sum(abs_x);
+                    slot[kAbsY] += lane_sum(abs_y);
+                    for (int64_t ch = 0; ch < channels; ++ch)
+                        slot[kFeatures + ch] += lane_sum(part<R0, N>(grad_f[ch]));
+                });
             }
         }
 #pragma omp for schedule(static)

@@ -65,14 +65,16 @@ TileBins bin_gaussians(const float* means2d, const float* conics, const float* o
     const int tiles = bins.tiles_x * bins.tiles_y;
     bins.boxes.assign(n, PixelBox{0, 0, -1, -1});
     bins.q_max.assign(n, 0.0f);
-    std::vector<int32_t> drawn;
-    drawn.reserve(n);
+#pragma omp parallel for schedule(static)
     for (int64_t i = 0; i < n; ++i) {
         if (radii[i] <= 0) continue;
         bins.q_max[i] = 2.0f * std::log(opacities[i] / kAlphaMin);
         bins.boxes[i] = alpha_box(means2d + 2 * i, conics + 3 * i, bins.q_max[i], width, height);
-        if (bins.boxes[i].x1 >= bins.boxes[i].x0) drawn.push_back(static_cast<int32_t>(i));
     }
+    std::vector<int32_t> drawn;
+    drawn.reserve(n);
+    for (int64_t i = 0; i < n; ++i)
+        if (bins.boxes[i].x1 >= bins.boxes[i].x0) drawn.push_back(static_cast<int32_t>(i));
     const std::vector<int32_t> order = sort_by_depth(drawn, depths);
 
     bins.offsets.assign(tiles + 1, 0);

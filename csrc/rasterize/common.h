@@ -7,9 +7,7 @@
 #include <cstring>
 #include <vector>
 
-#if defined(__AVX512F__)
-#include <immintrin.h>
-#endif
+#include "simd.h"
 
 namespace surgsplat {
 
@@ -19,76 +17,50 @@ constexpr float kAlphaMax = 0.99f;           // alpha = min(0.99, o * exp(-q / 2
 constexpr float kAlphaMin = 1.0f / 255.0f;   // contributions below this are skipped
 constexpr float kTransmittanceMin = 1e-4f;   // compositing stops below this transmittance
 
-// One tile row: 16 float lanes. GCC/Clang vector extensions compile this to one AVX-512
-// register, two AVX2 registers or four SSE registers, whatever the machine has.
-typedef float RowF __attribute__((vector_size(4 * kTile)));
-typedef int32_t RowI __attribute__((vector_size(4 * kTile)));
+// One tile row: 16 float lanes (simd.h: one AVX-512 register, two AVX2 registers or four
+// SSE / NEON registers, depending on the ISA variant being compiled).
+static_assert(kTile == kVecLanes, "a tile row is one 16-lane vector");
+typedef Vec16 RowF;
+typedef Vec16i RowI;
 
-inline RowF row_of(float value) { return RowF{} + value; }
-inline RowI row_of(int32_t value) { return RowI{} + value; }
+SURGSPLAT_INLINE RowF row_of(float value) { return RowF::all(value); }
+SURGSPLAT_INLINE RowI row_of(int32_t value) { return RowI::all(value); }
 
 // The lane offsets 0, 1, ..., 15 of a tile row.
-inline RowF lane_offsets() {
+SURGSPLAT_INLINE RowF lane_offsets() {
     RowF lanes;
     for (int i = 0; i < kTile; ++i) lanes[i] = static_cast<float>(i);
     return lanes;
 }
 
-// Bitwise select: mask lanes are all ones or all zeros.
-inline RowF select(RowI mask, RowF yes, RowF no) {
-    return reinterpret_cast<RowF>((mask & reinterpret_cast<RowI>(yes)) |
-                                  (~mask & reinterpret_cast<RowI>(no)));
-}
+// A whole row (N = kRegs) or the registers of it that a Gaussian reaches (simd.h, part()).
+template <int N>
+using RowPart = Pack<float, N>;
+template <int N>
+using RowPartI = Pack<int32_t, N>;
 
-inline RowF row_min(RowF x, float bound) { return select(x > bound, row_of(bound), x); }
-
-#if defined(__AVX512F__)
-inline float lane_sum(RowF x) { return _mm512_reduce_add_ps(reinterpret_cast<__m512>(x)); }
-inline bool any_lane(RowI mask) {
-    const __m512i m = reinterpret_cast<__m512i>(mask);
-    return _mm512_test_epi32_mask(m, m) != 0;
-}
-#else
-inline float lane_sum(RowF x) {
-    float sum = 0.0f;
-    for (int i = 0; i < kTile; ++i) sum += x[i];
-    return sum;
-}
-inline bool any_lane(RowI mask) {
-    int32_t any = 0;
-    for (int i = 0; i < kTile; ++i) any |= mask[i];
-    return any != 0;
-}
-#endif
-
-// 1 / x lane-wise. With AVX-512: the 14-bit reciprocal estimate (exactly specified, so the same
-// on every AVX-512 CPU) refined by one Newton step to within about 2 ulp, several times cheaper
-// than a vector division, which is otherwise the longest operation of the backward row loop.
-inline RowF row_reciprocal(RowF x) {
-#if defined(__AVX512F__)
-    const RowF r = reinterpret_cast<RowF>(_mm512_rcp14_ps(reinterpret_cast<__m512>(x)));
-    return r * (2.0f - x * r);
-#else
-    return 1.0f / x;
-#endif
+template <int N>
+SURGSPLAT_INLINE RowPart<N> row_min(RowPart<N> x, float bound) {
+    return select(x > bound, RowPart<N>::all(bound), x);
 }
 
 // exp(x) for x <= 0, lane-wise: x = n ln2 + r with |r| <= ln2 / 2, exp(r) by its degree-6
 // Taylor polynomial (relative error < 2e-7), 2^n built in the exponent bits.
-inline RowF row_exp(RowF x) {
-    x = select(x < -87.0f, row_of(-87.0f), x);
-    const RowF round_magic = row_of(12582912.0f);  // 1.5 * 2^23: adding it rounds to integer
-    const RowF n = (x * 1.44269504088896341f + round_magic) - round_magic;
-    const RowF r = x - n * 0.693145751953125f - n * 1.42860682030941723e-06f;
-    RowF p = row_of(1.0f / 720.0f);
+template <int N>
+SURGSPLAT_INLINE RowPart<N> row_exp(RowPart<N> x) {
+    x = select(x < -87.0f, RowPart<N>::all(-87.0f), x);
+    const float round_magic = 12582912.0f;  // 1.5 * 2^23: adding it rounds to integer
+    const RowPart<N> n = (x * 1.44269504088896341f + round_magic) - round_magic;
+    const RowPart<N> r = x - n * 0.693145751953125f - n * 1.42860682030941723e-06f;
+    RowPart<N> p = RowPart<N>::all(1.0f / 720.0f);
     p = p * r + 1.0f / 120.0f;
     p = p * r + 1.0f / 24.0f;
     p = p * r + 1.0f / 6.0f;
     p = p * r + 0.5f;
     p = p * r + 1.0f;
     p = p * r + 1.0f;
-    const RowI exponent = (__builtin_convertvector(n, RowI) + 127) << 23;
-    return p * reinterpret_cast<RowF>(exponent);
+    const RowPartI<N> exponent = (to_int(n) + 127) << 23;
+    return p * bits_as_float(exponent);
 }
 
 // Screen-space Gaussian as the kernels read it.
@@ -138,6 +110,7 @@ struct SplatInTile {
     float mx, my, a, b, c, opacity, q_max;
     RowF dx, qa, qb;   // per lane: dx, a dx^2 and 2 b dx, so that q = qa + dy (qb + c dy)
     int row0, row1;    // the tile rows its alpha box covers
+    int lane0, lane1;  // the tile columns (lanes) its alpha box covers
     bool spills;       // its box spills over the tile's sides: some rows may miss the tile
 
     SplatInTile(const float* means2d, const float* conics, const float* opacities,
@@ -150,6 +123,8 @@ struct SplatInTile {
         qb = 2.0f * b * dx;
         row0 = box.y0 - py0 > 0 ? box.y0 - py0 : 0;
         row1 = box.y1 - py0 < kTile - 1 ? box.y1 - py0 : kTile - 1;
+        lane0 = box.x0 - px0 > 0 ? box.x0 - px0 : 0;
+        lane1 = box.x1 - px0 < kTile - 1 ? box.x1 - px0 : kTile - 1;
         spills = box.x0 < px0 || box.x1 >= px0 + kTile;
     }
 
@@ -157,8 +132,23 @@ struct SplatInTile {
     bool reaches(float dy, int px0) const {
         return !spills || row_touches_tile(mx, a, b, c, q_max, dy, px0);
     }
-    RowF q(float dy) const { return qa + dy * (qb + c * dy); }
-    RowF alpha(RowF q) const { return row_min(opacity * row_exp(-0.5f * q), kAlphaMax); }
+    // q and alpha in the registers R0 .. R0 + N - 1 of tile row offset dy.
+    template <int R0, int N>
+    SURGSPLAT_INLINE RowPart<N> q(float dy) const {
+        return part<R0, N>(qa) + dy * (part<R0, N>(qb) + c * dy);
+    }
+    template <int N>
+    SURGSPLAT_INLINE RowPart<N> alpha(RowPart<N> q) const {
+        return row_min(opacity * row_exp(-0.5f * q), kAlphaMax);
+    }
+
+    // f(R0, N) (std::integral_constant) for the registers holding lanes lane0 .. lane1: narrow
+    // Gaussians skip the registers of the row their box does not reach, where alpha is below
+    // kAlphaMin anyway (without AVX-512: half of a row's work for boxes within 8 columns).
+    template <class F>
+    SURGSPLAT_INLINE void with_reached_registers(F&& f) const {
+        with_registers(lane0, lane1, f);
+    }
 };
 
 // Gaussians ahead in a tile list whose data is requested from memory before it is composited:

@@ -1,5 +1,6 @@
 // Forward compositing: parallel over tiles; inside a tile, Gaussians front to back, each over
-// the tile rows its alpha box touches, one 16-lane vector per row.
+// the tile rows its alpha box touches, one 16-lane vector per row (only the registers of it that
+// the box reaches).
 #include <algorithm>
 
 #include "common.h"
@@ -39,27 +40,36 @@ void rasterize_forward(const float* means2d, const float* conics, const float* o
                 const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
                 const float* feature = features + g * channels;
                 bool any_live = false;
-                for (int row = s.row0; row <= s.row1; ++row) {
-                    if (!row_live[row]) continue;
-                    const float dy = py0 + row + 0.5f - s.my;
-                    if (!s.reaches(dy, px0)) continue;
-                    const RowF q = s.q(dy);
-                    const RowF alpha = s.alpha(q);
-                    const RowI in = live[row] & (alpha >= kAlphaMin) & (q >= 0.0f);
-                    const RowF t_next = trans[row] * (1.0f - alpha);
-                    const RowI stop = in & (t_next < kTransmittanceMin);
-                    const RowI use = in & ~stop;
-                    const RowF weight = select(use, alpha * trans[row], row_of(0.0f));
-                    trans[row] = select(use, t_next, trans[row]);
-                    last[row] = (use & row_of(k + 1)) | (~use & last[row]);
-                    if (any_lane(stop)) {
-                        live[row] &= ~stop;
-                        row_live[row] = any_lane(live[row]);
+                s.with_reached_registers([&](auto first_register, auto registers) {
+                    constexpr int R0 = decltype(first_register)::value;
+                    constexpr int N = decltype(registers)::value;
+                    for (int row = s.row0; row <= s.row1; ++row) {
+                        if (!row_live[row]) continue;
+                        const float dy = py0 + row + 0.5f - s.my;
+                        if (!s.reaches(dy, px0)) continue;
+                        const RowPart<N> q = s.template q<R0, N>(dy);
+                        const RowPart<N> alpha = s.alpha(q);
+                        const RowPart<N> t = part<R0, N>(trans[row]);
+                        const RowPartI<N> in =
+                            part<R0, N>(live[row]) & (alpha >= kAlphaMin) & (q >= 0.0f);
+                        const RowPart<N> t_next = t * (1.0f - alpha);
+                        const RowPartI<N> stop = in & (t_next < kTransmittanceMin);
+                        const RowPartI<N> use = in & ~stop;
+                        const RowPart<N> weight = select(use, alpha * t, RowPart<N>{});
+                        set_part<R0, N>(trans[row], select(use, t_next, t));
+                        set_part<R0, N>(last[row], select(use, RowPartI<N>::all(k + 1),
+                                                          part<R0, N>(last[row])));
+                        if (any_lane(stop)) {
+                            set_part<R0, N>(live[row], part<R0, N>(live[row]) & ~stop);
+                            row_live[row] = any_lane(live[row]);
+                        }
+                        any_live = true;
+                        for (int64_t ch = 0; ch < channels; ++ch) {
+                            RowF& sum = accum[ch * kTile + row];
+                            set_part<R0, N>(sum, part<R0, N>(sum) + feature[ch] * weight);
+                        }
                     }
-                    any_live = true;
-                    for (int64_t ch = 0; ch < channels; ++ch)
-                        accum[ch * kTile + row] += feature[ch] * weight;
-                }
+                });
                 if (!any_live && std::none_of(row_live, row_live + kTile, [](bool r) { return r; }))
                     break;
             }

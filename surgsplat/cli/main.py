@@ -7,6 +7,7 @@ annotations; this module only registers them and turns user errors into one clea
 from __future__ import annotations
 
 import sys
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -23,8 +24,16 @@ app = typer.Typer(
 
 
 @app.callback()
-def _root() -> None:
+def _root(
+    threads: Annotated[int | None, typer.Option(
+        "--threads", min=1, help="Threads of torch and the native kernels (default: one per "
+        "core, or OMP_NUM_THREADS).")] = None,
+) -> None:
     """surgsplat: endoscopic video in, deforming 3D tissue, meshes, videos and metrics out."""
+    if threads is not None:
+        from surgsplat.render.native import set_threads
+
+        set_threads(threads)
 
 
 def _register() -> None:

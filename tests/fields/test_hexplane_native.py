@@ -61,10 +61,9 @@ CASES = [  # (features, spatial resolution per scale, time resolution)
 ]
 
 
-@needs_native
 @pytest.mark.parametrize("features,resolutions,time_resolution", CASES)
 @pytest.mark.parametrize("time", [-1.0, -0.35, 1.0])
-def test_forward_matches_reference(features, resolutions, time_resolution, time):
+def test_forward_matches_reference(native_isa, features, resolutions, time_resolution, time):
     spatial, temporal = make_planes(features, resolutions, time_resolution, seed=0)
     coords = make_coords(500, resolutions, seed=1)
     native, _ = run(coords, time, spatial, temporal, "native")
@@ -73,9 +72,8 @@ def test_forward_matches_reference(features, resolutions, time_resolution, time)
     assert (native - reference).abs().max() < FORWARD_ATOL
 
 
-@needs_native
 @pytest.mark.parametrize("features,resolutions,time_resolution", CASES)
-def test_gradients_match_reference(features, resolutions, time_resolution):
+def test_gradients_match_reference(native_isa, features, resolutions, time_resolution):
     spatial, temporal = make_planes(features, resolutions, time_resolution, seed=2)
     # no points on interior grid nodes: there the coordinate derivative is one-sided and the
     # side depends on the last bit of the unnormalised coordinate
@@ -91,8 +89,7 @@ def test_gradients_match_reference(features, resolutions, time_resolution):
         assert relative_error(value, expected) < GRAD_RTOL, name
 
 
-@needs_native
-def test_points_outside_are_clamped_to_the_border():
+def test_points_outside_are_clamped_to_the_border(native_isa):
     spatial, temporal = make_planes(8, [5], 4, seed=5)
     inside = torch.tensor([[1.0, -1.0, 0.25], [-1.0, 0.5, 1.0]])
     outside = torch.tensor([[3.0, -7.0, 0.25], [-1.01, 0.5, 40.0]])
@@ -108,8 +105,7 @@ def test_points_outside_are_clamped_to_the_border():
         torch.testing.assert_close(value, expected, rtol=0, atol=0)
 
 
-@needs_native
-def test_backward_is_deterministic():
+def test_backward_is_deterministic(native_isa):
     spatial, temporal = make_planes(32, [16, 32], 9, seed=6)
     coords = make_coords(20_000, [16, 32], seed=7)  # many points per plane node
     upstream = torch.randn(64, len(coords), generator=torch.Generator().manual_seed(8))

@@ -28,9 +28,8 @@ def test_reference_is_scipy_gaussian_filter_with_zero_padding(shape):
     np.testing.assert_allclose(gaussian_blur_reference(x).numpy(), expected, atol=1e-12, rtol=0)
 
 
-@needs_native
 @pytest.mark.parametrize("shape", SHAPES)
-def test_native_matches_reference_forward_and_backward(shape):
+def test_native_matches_reference_forward_and_backward(native_isa, shape):
     x = planes(shape).requires_grad_()
     x_ref = x.detach().double().requires_grad_()
     out, out_ref = gaussian_blur(x), gaussian_blur_reference(x_ref)
@@ -43,9 +42,8 @@ def test_native_matches_reference_forward_and_backward(shape):
     assert (x.grad.double() - x_ref.grad).abs().max().item() < 1e-5
 
 
-@needs_native
 @pytest.mark.parametrize("shape", [(1, 7, 5), (15, 37, 45)])
-def test_native_blur_is_self_adjoint(shape):
+def test_native_blur_is_self_adjoint(native_isa, shape):
     # <B x, y> = <x, B y>: the backward (the adjoint) is the same blur
     x, y = planes(shape, seed=2) - 0.5, planes(shape, seed=3) - 0.5
     bx_y = (gaussian_blur(x).double() * y.double()).sum().item()
@@ -54,8 +52,7 @@ def test_native_blur_is_self_adjoint(shape):
     assert abs(bx_y) > 1e-3  # not vacuous
 
 
-@needs_native
-def test_native_zero_padding_at_the_corner():
+def test_native_zero_padding_at_the_corner(native_isa):
     # a plane of ones: the corner pixel sees the inner half of the window along each axis
     taps = gaussian_taps(torch.float64, torch.device("cpu"))
     inner = taps[WINDOW_SIZE // 2:].sum().item()

@@ -99,9 +99,8 @@ def test_differentiable_gradcheck():
                                     atol=1e-6)
 
 
-@needs_native
 @pytest.mark.parametrize("height,width,channels", [(1, 1, 1), (7, 5, 3), (37, 45, 3), (20, 70, 1)])
-def test_native_matches_reference_map_and_gradients(height, width, channels):
+def test_native_matches_reference_map_and_gradients(native_isa, height, width, channels):
     generator = torch.Generator().manual_seed(4)
     gt = torch.rand(height, width, channels, generator=generator)
     pred = (gt + 0.1 * torch.randn(gt.shape, generator=generator)).clamp(0, 1)
@@ -119,9 +118,8 @@ def test_native_matches_reference_map_and_gradients(height, width, channels):
         assert (got.grad.double() - want.grad).abs().max().item() < 1e-5 * max(scale, 1.0)
 
 
-@needs_native
 @pytest.mark.parametrize("masked", [False, True])
-def test_native_score_matches_reference_value_and_gradients(masked):
+def test_native_score_matches_reference_value_and_gradients(native_isa, masked):
     # the native score sums the (masked) map inside the kernel; the reference takes its mean
     pred, gt = noisy_pair(seed=6)
     mask = np.ones(gt.shape[:2], dtype=bool)
@@ -142,8 +140,7 @@ def test_native_score_matches_reference_value_and_gradients(masked):
         assert want.grad.abs().max().item() > 1e-4  # not vacuous
 
 
-@needs_native
-def test_native_gradient_only_for_inputs_that_need_it():
+def test_native_gradient_only_for_inputs_that_need_it(native_isa):
     pred, gt = noisy_pair(seed=5)
     pred_t = torch.tensor(pred, dtype=torch.float32, requires_grad=True)
     gt_t = torch.tensor(gt, dtype=torch.float32)

@@ -86,8 +86,7 @@ def native_test_gaussians(num: int, seed: int):
     return means, scales, quats, pose
 
 
-@needs_native
-def test_native_projection_forward_matches_reference():
+def test_native_projection_forward_matches_reference(native_isa):
     means, scales, quats, pose = native_test_gaussians(4000, seed=5)
     expected = project_reference(means, scales, quats, K, 64, 48, pose, near=0.01, lowpass=0.3)
     # float32 Gaussians with a float64 camera: the Gaussians' dtype selects the kernel.
@@ -104,8 +103,7 @@ def test_native_projection_forward_matches_reference():
     assert int(radius_diff.max()) <= 1 and float((radius_diff > 0).double().mean()) < 0.005
 
 
-@needs_native
-def test_native_projection_gradients_match_reference():
+def test_native_projection_gradients_match_reference(native_isa):
     means, scales, quats, pose = native_test_gaussians(3000, seed=6)
     generator = torch.Generator().manual_seed(7)
     upstream = None

@@ -46,10 +46,9 @@ def test_reference_gradcheck(scene_factory):
     assert torch.autograd.gradcheck(composite, inputs, eps=1e-6, atol=1e-6)
 
 
-@needs_native
 @pytest.mark.parametrize("num,width,height,channels", [
     (300, 37, 29, 3), (200, 16, 16, 1), (150, 33, 20, 32), (400, 48, 40, 8)])
-def test_native_matches_reference(scene_factory, num, width, height, channels):
+def test_native_matches_reference(native_isa, scene_factory, num, width, height, channels):
     scene = scene_factory(num, width, height, channels=channels, seed=num)
     native = run(scene, "native")
     reference = run(scene, "reference")
@@ -60,8 +59,7 @@ def test_native_matches_reference(scene_factory, num, width, height, channels):
     assert relative_error(native[3], reference[3]) < 1e-4
 
 
-@needs_native
-def test_opaque_layers_stop_early_in_both(scene_factory):
+def test_opaque_layers_stop_early_in_both(native_isa, scene_factory):
     scene = scene_factory(500, 24, 24, seed=7, scale=0.4)
     scene["opacities"] = torch.full_like(scene["opacities"], 0.98)
     native, reference = run(scene, "native"), run(scene, "reference")
@@ -109,9 +107,8 @@ class TestEdgeCases:
         assert image.shape == (size[1], size[0], 3) and alpha.shape == (size[1], size[0])
 
 
-@needs_native
 @pytest.mark.parametrize("size", [(1, 1), (17, 33), (5, 40)])
-def test_odd_image_sizes_agree(scene_factory, size):
+def test_odd_image_sizes_agree(native_isa, scene_factory, size):
     scene = scene_factory(60, *size, seed=5)
     native, reference = run(scene, "native"), run(scene, "reference")
     assert (native[0] - reference[0]).abs().max() < 1e-5
@@ -140,8 +137,11 @@ def test_missing_native_module_falls_back_with_one_warning(monkeypatch):
 
     import surgsplat.render
     native_loader.native_module.cache_clear()
-    monkeypatch.setitem(sys.modules, "surgsplat.render._native", None)
-    monkeypatch.delattr(surgsplat.render, "_native", raising=False)
+    native_loader._portable.cache_clear()
+    native_loader.isa_unavailable.cache_clear()
+    for isa in native_loader.ISAS:
+        monkeypatch.setitem(sys.modules, f"surgsplat.render._native_{isa}", None)
+        monkeypatch.delattr(surgsplat.render, f"_native_{isa}", raising=False)
     try:
         with pytest.warns(RuntimeWarning, match="PyTorch reference"):
             assert resolve_backend("rasterize", "auto", [torch.zeros(1)]) == "reference"
@@ -149,4 +149,6 @@ def test_missing_native_module_falls_back_with_one_warning(monkeypatch):
             resolve_backend("rasterize", "native", [torch.zeros(1)])
     finally:
         monkeypatch.undo()
-        native_loader.native_module.cache_clear()
+        for cached in (native_loader.native_module, native_loader._portable,
+                       native_loader.isa_unavailable):
+            cached.cache_clear()

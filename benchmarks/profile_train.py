@@ -1,0 +1,90 @@
+"""Where a training run's time goes: samples `surgsplat train` with py-spy (Python and native
+frames of the main thread, waiting included) and sums the samples by part of the iteration.
+
+    pip install py-spy
+    python benchmarks/profile_train.py --data PHANTOM [--method deform3dgs] [--iters 100]
+                                       [--rate 200] [--out FILE]
+
+A sample counts for the first category (in the order of CATEGORIES) one of whose markers is in
+its stack; the rest is `other`. Results go to benchmarks/results/profile_train-<cpu>.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections import Counter
+from datetime import datetime, timezone
+from pathlib import Path
+
+from bench_render import results_path
+
+from surgsplat.render import native
+
+CATEGORIES = {  # name: stack markers, most specific first
+    "rasterize (native fwd+bwd)": ("rasterize_forward", "rasterize_backward", "_NativeRasterize"),
+    "projection": ("project_forward", "project_backward", "render/project.py"),
+    "D-SSIM": ("ssim_forward", "ssim_backward", "eval/ssim.py", "image/ssim.py"),
+    "deformation field": ("hexplane", "gaussian_basis.py", "fields/"),
+    "Adam": ("optim/adam.py", "_fused_adam", "optim/optimizer.py"),
+    "densify / prune": ("strategy.py",),
+    "data loading": ("data/",),
+    "other losses": ("losses/",),
+    "rest of render (SH, colours, tensors)": ("render/",),
+    "autograd engine (other ops' backward)": ("run_backward", "autograd/__init__.py"),
+    "imports": ("_find_and_load",),
+}
+
+
+def categorise(stacks: Counter) -> Counter:
+    totals: Counter = Counter()
+    for stack, count in stacks.items():
+        name = next((name for name, markers in CATEGORIES.items()
+                     if any(m in stack for m in markers)), "other (Python, torch ops)")
+        totals[name] += count
+    return totals
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, required=True, help="scene folder (a phantom)")
+    parser.add_argument("--method", default="deform3dgs")
+    parser.add_argument("--iters", type=int, default=100)
+    parser.add_argument("--rate", type=int, default=200, help="samples per second")
+    parser.add_argument("--out", type=Path)
+    args = parser.parse_args()
+    py_spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = Path(tmp) / "samples.txt"
+        command = [sys.executable, "-m", "surgsplat.cli.main", "train", "--method", args.method,
+                   "--data", str(args.data), "--out", str(Path(tmp) / "run"),
+                   "--iters", str(args.iters)]
+        subprocess.run([py_spy, "record", "--native", "--idle", "--format", "raw", "--rate",
+                        str(args.rate), "--output", str(raw), "--", *command], check=True,
+                       capture_output=True)
+        stacks: Counter = Counter()
+        for line in raw.read_text().splitlines():
+            stack, _, count = line.rpartition(" ")
+            if stack:
+                stacks[stack] += int(count)
+    totals = categorise(stacks)
+    total = sum(totals.values())
+    info = native.system_info()
+    report = {"benchmark": "profile_train", "cpu": info["cpu"], "system": info,
+              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+              "command": f"surgsplat train --method {args.method} --iters {args.iters}",
+              "data": args.data.name, "samples": total,
+              "shares": {name: count / total for name, count in totals.most_common()}}
+    out = args.out or results_path("profile_train", info["cpu"])
+    out.write_text(json.dumps(report, indent=1) + "\n")
+    for name, share in report["shares"].items():
+        print(f"{share:7.1%}  {name}")
+    print(f"{total} samples; written to {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,232 @@
+// Vec16 / Vec16i: the 16-lane float and int32 vectors the kernels compute with (one 16x16 tile
+// row, 16 features, 16 points), made of the target's own registers: one AVX-512 register, two AVX
+// registers or four SSE / NEON registers. Each ISA variant of the native module (CMakeLists.txt)
+// compiles this header with its own target flags, so exactly one register width is chosen:
+//   avx512   (x86-64-v4)  1 x 16 lanes
+//   avx2     (x86-64-v3)  2 x 8 lanes, AVX2 + FMA
+//   baseline (x86-64)     4 x 4 lanes, SSE2 only
+//   neon     (aarch64)    4 x 4 lanes
+//
+// Why not one 64-byte GCC vector type: without AVX-512, GCC expands arithmetic on it into
+// register-sized pieces, but lowers comparisons, lane selections (?:, or and/andnot of a
+// comparison's mask) and conversions to one scalar branch or insert per lane. Holding the
+// registers explicitly keeps every operation below one instruction per register on every target,
+// and no target falls back to scalar reductions or divisions (reciprocal() refines the hardware
+// estimate instead of dividing).
+#pragma once
+
+#include <cstdint>
+#include <type_traits>
+
+#if defined(__x86_64__) || defined(_M_X64)
+#include <immintrin.h>
+#elif defined(__aarch64__)
+#include <arm_neon.h>
+#else
+#error "surgsplat's native kernels target x86-64 and aarch64"
+#endif
+
+namespace surgsplat {
+
+// Every vector helper is forced inline: a call passes its 64-byte operands through memory.
+#define SURGSPLAT_INLINE inline __attribute__((always_inline))
+
+constexpr int kVecLanes = 16;
+#if defined(__AVX512F__)
+constexpr int kRegLanes = 16;
+#elif defined(__AVX__)
+constexpr int kRegLanes = 8;
+#else
+constexpr int kRegLanes = 4;
+#endif
+constexpr int kRegs = kVecLanes / kRegLanes;
+
+// N registers of T lanes: a full 16-lane vector (N = kRegs), or the registers R0 .. R0 + N - 1
+// of one (part() / set_part(), for work that touches only some of a row's lanes). Arithmetic
+// with a scalar broadcasts it; comparisons give a mask, all ones in the lanes where they hold.
+template <class T, int N = kRegs>
+struct Pack {
+    typedef T Reg __attribute__((vector_size(sizeof(T) * kRegLanes)));
+    Reg r[N];
+
+    SURGSPLAT_INLINE T& operator[](int i) { return reinterpret_cast<T*>(r)[i]; }
+    SURGSPLAT_INLINE T operator[](int i) const { return reinterpret_cast<const T*>(r)[i]; }
+
+    template <class F>
+    SURGSPLAT_INLINE static Pack map(F f, const Pack& a, const Pack& b) {
+        Pack out;
+        for (int i = 0; i < N; ++i) out.r[i] = f(a.r[i], b.r[i]);
+        return out;
+    }
+    SURGSPLAT_INLINE static Pack all(T value) {
+        Pack out;
+        for (int i = 0; i < N; ++i) out.r[i] = Reg{} + value;
+        return out;
+    }
+
+#define SURGSPLAT_PACK_ARITHMETIC(op)                                                      \
+    SURGSPLAT_INLINE friend Pack operator op(const Pack& a, const Pack& b) {               \
+        return map([](Reg x, Reg y) { return x op y; }, a, b);                            \
+    }                                                                                      \
+    SURGSPLAT_INLINE friend Pack operator op(const Pack& a, T b) { return a op all(b); }   \
+    SURGSPLAT_INLINE friend Pack operator op(T a, const Pack& b) { return all(a) op b; }   \
+    SURGSPLAT_INLINE Pack& operator op##=(const Pack& b) { return *this = *this op b; }    \
+    SURGSPLAT_INLINE Pack& operator op##=(T b) { return *this = *this op all(b); }
+    SURGSPLAT_PACK_ARITHMETIC(+)
+    SURGSPLAT_PACK_ARITHMETIC(-)
+    SURGSPLAT_PACK_ARITHMETIC(*)
+    SURGSPLAT_PACK_ARITHMETIC(&)
+    SURGSPLAT_PACK_ARITHMETIC(|)
+#undef SURGSPLAT_PACK_ARITHMETIC
+    SURGSPLAT_INLINE friend Pack operator-(const Pack& a) { return T(0) - a; }
+    SURGSPLAT_INLINE friend Pack operator~(const Pack& a) {
+        Pack out;
+        for (int i = 0; i < N; ++i) out.r[i] = ~a.r[i];
+        return out;
+    }
+    SURGSPLAT_INLINE friend Pack operator<<(const Pack& a, int bits) {
+        Pack out;
+        for (int i = 0; i < N; ++i) out.r[i] = a.r[i] << bits;
+        return out;
+    }
+
+#define SURGSPLAT_PACK_COMPARISON(op)                                                      \
+    SURGSPLAT_INLINE friend Pack<int32_t, N> operator op(const Pack& a, const Pack& b) {   \
+        Pack<int32_t, N> out;                                                              \
+        for (int i = 0; i < N; ++i) out.r[i] = a.r[i] op b.r[i];                           \
+        return out;                                                                        \
+    }                                                                                      \
+    SURGSPLAT_INLINE friend Pack<int32_t, N> operator op(const Pack& a, T b) {             \
+        return a op all(b);                                                                \
+    }                                                                                      \
+    SURGSPLAT_INLINE friend Pack<int32_t, N> operator op(T a, const Pack& b) {             \
+        return all(a) op b;                                                                \
+    }
+    SURGSPLAT_PACK_COMPARISON(<)
+    SURGSPLAT_PACK_COMPARISON(<=)
+    SURGSPLAT_PACK_COMPARISON(>)
+    SURGSPLAT_PACK_COMPARISON(>=)
+#undef SURGSPLAT_PACK_COMPARISON
+};
+
+typedef Pack<float> Vec16;
+typedef Pack<int32_t> Vec16i;
+
+// Registers R0 .. R0 + N - 1 of a 16-lane vector, and writing them back.
+template <int R0, int N, class T>
+SURGSPLAT_INLINE Pack<T, N> part(const Pack<T>& x) {
+    static_assert(R0 >= 0 && N >= 1 && R0 + N <= kRegs, "registers out of range");
+    Pack<T, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = x.r[R0 + i];
+    return out;
+}
+template <int R0, int N, class T>
+SURGSPLAT_INLINE void set_part(Pack<T>& x, const Pack<T, N>& value) {
+    for (int i = 0; i < N; ++i) x.r[R0 + i] = value.r[i];
+}
+
+// f(std::integral_constant<int, R0>, std::integral_constant<int, N>) for the registers R0 ..
+// R0 + N - 1 that hold lanes first .. last (0 <= first <= last < kVecLanes): a run-time lane
+// range to a compile-time register range.
+template <int R0 = 0, int N = 1, class F>
+SURGSPLAT_INLINE void with_registers(int first, int last, F&& f) {
+    if constexpr (R0 + N <= kRegs) {
+        if (first / kRegLanes == R0 && last / kRegLanes == R0 + N - 1)
+            f(std::integral_constant<int, R0>{}, std::integral_constant<int, N>{});
+        else if constexpr (R0 + N < kRegs)
+            with_registers<R0, N + 1>(first, last, f);
+        else
+            with_registers<R0 + 1, 1>(first, last, f);
+    }
+}
+
+// yes where mask (lanes all ones or all zeros) is set, else no.
+template <class T, int N>
+SURGSPLAT_INLINE Pack<T, N> select(const Pack<int32_t, N>& mask, const Pack<T, N>& yes,
+                                   const Pack<T, N>& no) {
+    Pack<T, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = mask.r[i] ? yes.r[i] : no.r[i];
+    return out;
+}
+
+// Lane-wise conversion to int32, rounding toward zero, and back; and the same bits seen as the
+// other type.
+template <int N>
+SURGSPLAT_INLINE Pack<int32_t, N> to_int(const Pack<float, N>& x) {
+    Pack<int32_t, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = __builtin_convertvector(x.r[i], Vec16i::Reg);
+    return out;
+}
+template <int N>
+SURGSPLAT_INLINE Pack<float, N> to_float(const Pack<int32_t, N>& x) {
+    Pack<float, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = __builtin_convertvector(x.r[i], Vec16::Reg);
+    return out;
+}
+template <int N>
+SURGSPLAT_INLINE Pack<float, N> bits_as_float(const Pack<int32_t, N>& x) {
+    Pack<float, N> out;
+    for (int i = 0; i < N; ++i) out.r[i] = reinterpret_cast<Vec16::Reg>(x.r[i]);
+    return out;
+}
+
+// The sum of the lanes: registers added, then one register's lanes pairwise.
+template <int N>
+SURGSPLAT_INLINE float lane_sum(const Pack<float, N>& x) {
+    Vec16::Reg s = x.r[0];
+    for (int i = 1; i < N; ++i) s += x.r[i];
+#if defined(__AVX512F__)
+    return _mm512_reduce_add_ps(reinterpret_cast<__m512>(s));
+#elif defined(__x86_64__) || defined(_M_X64)
+#if defined(__AVX__)
+    const __m128 q = _mm_add_ps(_mm256_castps256_ps128(reinterpret_cast<__m256>(s)),
+                                _mm256_extractf128_ps(reinterpret_cast<__m256>(s), 1));
+#else
+    const __m128 q = reinterpret_cast<__m128>(s);
+#endif
+    const __m128 pairs = _mm_add_ps(q, _mm_movehl_ps(q, q));
+    return _mm_cvtss_f32(_mm_add_ss(pairs, _mm_shuffle_ps(pairs, pairs, 1)));
+#else
+    return vaddvq_f32(reinterpret_cast<float32x4_t>(s));
+#endif
+}
+
+// Whether any lane of `mask` (lanes all ones or all zeros) is set.
+template <int N>
+SURGSPLAT_INLINE bool any_lane(const Pack<int32_t, N>& mask) {
+    Vec16i::Reg m = mask.r[0];
+    for (int i = 1; i < N; ++i) m |= mask.r[i];
+#if defined(__AVX512F__)
+    return _mm512_test_epi32_mask(reinterpret_cast<__m512i>(m), reinterpret_cast<__m512i>(m)) != 0;
+#elif defined(__AVX__)
+    return !_mm256_testz_si256(reinterpret_cast<__m256i>(m), reinterpret_cast<__m256i>(m));
+#elif defined(__x86_64__) || defined(_M_X64)
+    return _mm_movemask_ps(reinterpret_cast<__m128>(m)) != 0;
+#else
+    return vmaxvq_u32(reinterpret_cast<uint32x4_t>(m)) != 0;
+#endif
+}
+
+// 1 / x lane-wise for normal, positive x, to within about 2 ulp: the hardware's reciprocal
+// estimate refined by a Newton step r' = r (2 - x r), several times cheaper than a division.
+// The AVX-512 estimate has 14 bits, SSE/AVX ones 12; NEON's 8 bits take one more step (vrecps).
+template <int N>
+SURGSPLAT_INLINE Pack<float, N> reciprocal(const Pack<float, N>& x) {
+    Pack<float, N> r;
+    for (int i = 0; i < N; ++i) {
+#if defined(__AVX512F__)
+        r.r[i] = reinterpret_cast<Vec16::Reg>(_mm512_rcp14_ps(reinterpret_cast<__m512>(x.r[i])));
+#elif defined(__AVX__)
+        r.r[i] = reinterpret_cast<Vec16::Reg>(_mm256_rcp_ps(reinterpret_cast<__m256>(x.r[i])));
+#elif defined(__x86_64__) || defined(_M_X64)
+        r.r[i] = reinterpret_cast<Vec16::Reg>(_mm_rcp_ps(reinterpret_cast<__m128>(x.r[i])));
+#else
+        const float32x4_t v = reinterpret_cast<float32x4_t>(x.r[i]);
+        const float32x4_t e = vrecpeq_f32(v);
+        r.r[i] = reinterpret_cast<Vec16::Reg>(vmulq_f32(e, vrecpsq_f32(v, e)));
+#endif
+    }
+    return r * (2.0f - x * r);
+}
+
+}  // namespace surgsplat

@@ -1,0 +1,94 @@
+"""Choosing the ISA variant of the native kernels: the fastest the CPU runs by default,
+SURGSPLAT_ISA or use_isa() to force one, clear errors and warnings for one that cannot run."""
+
+import pytest
+
+from surgsplat.render import native
+
+needs_native = pytest.mark.skipif(native.native_module() is None,
+                                  reason="native module not built")
+
+
+@needs_native
+def test_default_is_the_fastest_available(monkeypatch):
+    monkeypatch.delenv(native.ISA_ENV, raising=False)
+    native.use_isa(None)
+    available = native.available_isas()
+    assert available and available[-1] in ("baseline", "neon")  # the portable one runs anywhere
+    assert native.active_isa() == available[0]
+
+
+def test_native_isa_fixture_switches_the_module(native_isa):
+    assert native.active_isa() == native_isa
+    assert native.native_module().isa == native_isa
+
+
+@needs_native
+def test_environment_variable_forces_a_variant(monkeypatch):
+    portable = native.available_isas()[-1]
+    monkeypatch.setenv(native.ISA_ENV, portable)
+    native.use_isa(None)
+    try:
+        assert native.active_isa() == portable
+    finally:
+        monkeypatch.delenv(native.ISA_ENV)
+        native.use_isa(None)
+
+
+@needs_native
+def test_unusable_variant_from_the_environment_warns_and_falls_back(monkeypatch):
+    missing = [isa for isa in native.ISAS if native.isa_unavailable(isa) is not None]
+    monkeypatch.setenv(native.ISA_ENV, missing[0] if missing else "vax")
+    native.use_isa(None)
+    try:
+        with pytest.warns(RuntimeWarning, match="ignored"):
+            assert native.active_isa() == native.available_isas()[0]
+    finally:
+        monkeypatch.delenv(native.ISA_ENV)
+        native.use_isa(None)
+
+
+def test_use_isa_rejects_unknown_and_unavailable_variants():
+    with pytest.raises(ValueError, match="unknown ISA"):
+        native.use_isa("vax")
+    missing = [isa for isa in native.ISAS if native.isa_unavailable(isa) is not None]
+    if missing:
+        with pytest.raises(ValueError, match=missing[0]):
+            native.use_isa(missing[0])
+
+
+@needs_native
+def test_probe_counts_work_and_set_threads(native_isa):
+    module = native.native_module()
+    assert module.composite_probe(2, 8, 3) > 0.0
+    with pytest.raises(ValueError):
+        module.composite_probe(0, 8, 3)
+    before = module.max_threads()
+    native.set_threads(1)
+    try:
+        assert module.max_threads() == 1
+    finally:
+        native.set_threads(before)
+
+
+@needs_native
+def test_a_build_with_only_the_portable_variant_uses_it(monkeypatch):
+    """As after `SURGSPLAT_ISA_TARGETS=baseline`: only the portable module exists."""
+    import sys
+
+    import surgsplat.render
+
+    portable = native.available_isas()[-1]
+    for isa in native.ISAS:
+        if isa != portable:
+            monkeypatch.setitem(sys.modules, f"surgsplat.render._native_{isa}", None)
+            monkeypatch.delattr(surgsplat.render, f"_native_{isa}", raising=False)
+    native.isa_unavailable.cache_clear()
+    native.use_isa(None)
+    try:
+        assert native.available_isas() == [portable]
+        assert native.active_isa() == portable
+    finally:
+        monkeypatch.undo()
+        native.isa_unavailable.cache_clear()
+        native.use_isa(None)
