@@ -28,7 +28,8 @@ from surgsplat.eval.image_metrics import psnr_tissue
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.registry import method_config
-from surgsplat.model.dynamic import render_time
+from surgsplat.model.component import FrameTime
+from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import Trainer
 
@@ -41,7 +42,8 @@ def test_psnr(trainer: Trainer) -> float:
     """Mean psnr_tissue over the test frames, rendered now."""
     values = []
     for frame in trainer.scene.test_frames:
-        out = render_time(trainer.model, trainer.scene.camera, frame.time, trainer.background)
+        out = render_frame(trainer.model, trainer.scene.camera, FrameTime(frame.index, frame.time),
+                           trainer.background)
         values.append(psnr_tissue(out.rgb.clamp(0, 1), frame.image, frame.tissue))
     return sum(values) / len(values)
 

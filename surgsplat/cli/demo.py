@@ -32,10 +32,8 @@ def demo_command(
         generate_phantom(PhantomConfig(preset="small", motion="pulling"), scene_dir)
     print_summary_table(scene_dir)
     console.rule("2/4 train")
-    config = method_config(method)
-    config.train.iterations = iters
     resume = (run_dir / "checkpoints" / "latest.pt").is_file()
-    train_run(config, scene_dir, run_dir, resume=resume)
+    train_run(method_config(method), scene_dir, run_dir, resume=resume, iterations=iters)
     console.rule("3/4 evaluate")
     evaluate_and_report(run_dir)
     console.rule("4/4 render")

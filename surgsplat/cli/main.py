@@ -28,12 +28,14 @@ def _root() -> None:
 
 
 def _register() -> None:
-    from surgsplat.cli import demo, eval_cmd, import_cmd, info, phantom, render_videos, train
+    from surgsplat.cli import (demo, eval_cmd, import_cmd, info, methods, phantom, render_videos,
+                               train)
 
     app.command("demo")(demo.demo_command)
     app.command("phantom")(phantom.phantom_command)
     app.command("import")(import_cmd.import_command)
     app.command("info")(info.info_command)
+    app.command("methods")(methods.methods_command)
     app.command("train")(train.train_command)
     app.command("eval")(eval_cmd.eval_command)
     app.command("render")(render_videos.render_command)

@@ -11,11 +11,13 @@ import typer
 from rich.console import Console
 
 from surgsplat.cli.progress import progress_bar
-from surgsplat.export.video import colorize_depth, even_size, to_uint8, write_video
-from surgsplat.model.dynamic import render_time
+from surgsplat.eval.normals import surface_normals
+from surgsplat.export.video import colorize_depth, colorize_normals, even_size, to_uint8, write_video
+from surgsplat.model.component import FrameTime
+from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun, load_trained_run
 
-VIDEO_NAMES = ("rgb.mp4", "depth.mp4", "side_by_side.mp4")
+VIDEO_NAMES = ("rgb.mp4", "depth.mp4", "normal.mp4", "side_by_side.mp4")
 
 
 def depth_range(run: TrainedRun) -> tuple[float, float]:
@@ -24,7 +26,7 @@ def depth_range(run: TrainedRun) -> tuple[float, float]:
     if run.scene.has_depth:
         values = torch.cat([f.depth[f.depth > 0][::97] for f in run.scene.frames])
     else:
-        out = render_time(run.model, run.scene.camera, 0.0)
+        out = render_frame(run.model, run.scene.camera, FrameTime(0, 0.0))
         values = out.depth[out.alpha > 0.5]
     if values.numel() == 0:
         return 0.0, 1.0
@@ -36,20 +38,22 @@ def write_run_videos(run: TrainedRun, out_dir: Path, fps: float) -> list[Path]:
     near, far = depth_range(run)
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
     frames = run.scene.frames
-    rgb_frames, depth_frames, side_frames = [], [], []
+    videos: list[list[np.ndarray]] = [[] for _ in VIDEO_NAMES]
     with progress_bar() as bar:
         task = bar.add_task("render", total=len(frames))
         for frame in frames:
-            out = render_time(run.model, run.scene.camera, frame.time, background)
+            camera = run.scene.camera
+            out = render_frame(run.model, camera, FrameTime(frame.index, frame.time), background)
             rgb = to_uint8(out.rgb.numpy())
             depth = colorize_depth(out.depth.numpy(), near, far)
-            rgb_frames.append(even_size(rgb))
-            depth_frames.append(even_size(depth))
-            side_frames.append(even_size(np.concatenate([to_uint8(frame.image.numpy()), rgb,
-                                                         depth], axis=1)))
+            normals, valid, _ = surface_normals(out, camera.K)
+            normal = colorize_normals(normals.numpy(), valid.numpy())
+            side = np.concatenate([to_uint8(frame.image.numpy()), rgb, depth], axis=1)
+            for video, image in zip(videos, (rgb, depth, normal, side)):
+                video.append(even_size(image))
             bar.advance(task)
     paths = [out_dir / name for name in VIDEO_NAMES]
-    for path, video in zip(paths, (rgb_frames, depth_frames, side_frames)):
+    for path, video in zip(paths, videos):
         write_video(path, video, fps)
     return paths
 
@@ -59,7 +63,8 @@ def render_command(
     out: Annotated[Path | None, typer.Option(help="Video folder (default RUN/videos).")] = None,
     fps: Annotated[float, typer.Option(help="Frames per second of the videos.")] = 15.0,
 ) -> None:
-    """Render RGB, colour-mapped depth and input|render|depth side-by-side mp4 videos."""
+    """Render RGB, colour-mapped depth, normal maps and input|render|depth side-by-side mp4
+    videos."""
     run = load_trained_run(run_dir)
     paths = write_run_videos(run, out or run_dir / "videos", fps)
     Console().print("videos: " + ", ".join(str(p) for p in paths))

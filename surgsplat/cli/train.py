@@ -13,6 +13,8 @@ from surgsplat.cli.progress import progress_bar
 from surgsplat.data.scene import load_scene
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.config import MethodConfig
+from surgsplat.methods.overrides import (apply_values, method_from_values, parse_assignment,
+                                         read_config_file)
 from surgsplat.methods.registry import PRESETS, method_config
 from surgsplat.train.run import read_run_config, read_run_scene
 from surgsplat.train.trainer import CHECKPOINT, StepStats, Trainer
@@ -42,7 +44,7 @@ def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
     if iterations is not None:
         if iterations <= 0:
             raise SurgsplatError(f"--iters must be positive, got {iterations}")
-        config.train.iterations = iterations
+        config = apply_values(config, {"train": {"iterations": iterations}}, where="--iters")
     trainer = Trainer(config, scene, out)
     if resume:
         trainer.load(checkpoint)
@@ -67,13 +69,47 @@ def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
     return trainer
 
 
+def build_method_config(method: str | None, config_file: Path | None,
+                        assignments: list[str]) -> MethodConfig:
+    """The preset `method` (default deform3dgs, or the one `config_file` names), with the file's
+    values and then each `KEY=VALUE` assignment applied, type-checked."""
+    values = read_config_file(config_file) if config_file is not None else {}
+    name = values.get("name", method) or "deform3dgs"
+    if method is not None and name != method:
+        raise SurgsplatError(f"{config_file}: configures method {name!r} but --method is "
+                             f"{method!r}")
+    config = method_from_values(values, method_config(name), str(config_file or "config"))
+    for text in assignments:
+        config = apply_values(config, parse_assignment(text), where="--set")
+    return config
+
+
 def train_command(
-    method: Annotated[str, typer.Option(help=f"Method preset: {', '.join(PRESETS)}.")] = "deform3dgs",
+    method: Annotated[str | None, typer.Option(
+        help=f"Method preset: {', '.join(PRESETS)} (default deform3dgs; see `surgsplat "
+             f"methods`).")] = None,
     data: Annotated[Path | None, typer.Option(help="EndoNeRF-layout scene folder.")] = None,
     out: Annotated[Path, typer.Option(help="Run folder to write.")] = Path("runs/latest"),
     iters: Annotated[int | None, typer.Option(help="Number of iterations (preset default if "
                                                      "omitted).")] = None,
     resume: Annotated[bool, typer.Option(help="Continue the run in --out from its checkpoint.")] = False,
+    config: Annotated[Path | None, typer.Option(
+        "--config", help="JSON or TOML file of settings, e.g. a run's config.json to reproduce "
+                         "it.")] = None,
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", help="Change one setting, e.g. --set losses.normal.weight=0.1 --set "
+                      "train.iterations=5000 (repeatable; applied after --config).")] = None,
 ) -> None:
     """Train a deforming-Gaussian reconstruction of a scene."""
-    train_run(method_config(method), data, out, resume, iters)
+    if resume:
+        if config is not None or set_:
+            raise SurgsplatError("--config and --set change a new run; a resumed run keeps its "
+                                 "saved config (only --iters may extend it)")
+        saved = read_run_config(out) if (out / CHECKPOINT).is_file() else None
+        if saved is not None and method is not None and method != saved.name:
+            raise SurgsplatError(f"{out} holds a {saved.name!r} run; --method {method} does not "
+                                 "apply to it")
+        train_run(method_config(saved.name if saved else method or "deform3dgs"), data, out,
+                  resume, iters)
+        return
+    train_run(build_method_config(method, config, set_ or []), data, out, resume, iters)

@@ -22,7 +22,7 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from surgsplat.losses.depth import valid_depth_pixels
+from surgsplat.image.depth import valid_depth_pixels
 
 FSCORE_THRESHOLD_MM = 1.0
 _CANDIDATES = 8  # nearest triangle centroids checked exactly before the exactness test

@@ -17,7 +17,7 @@ import math
 import torch
 from torch import Tensor
 
-from surgsplat.eval.ssim import ssim
+from surgsplat.image.ssim import ssim
 
 
 def _check(pred: Tensor, gt: Tensor, tissue: Tensor) -> None:

@@ -4,7 +4,8 @@ Image metrics exclude tool pixels in two named conventions (see image_metrics.py
 is over tissue pixels with valid depth; on a phantom, geometry is measured against the
 ground-truth tissue mesh of each test frame (gt/meshes/<frame>.ply, world frame), using the
 reconstructed surface: the rendered depth back-projected over tissue pixels with the frame's
-camera into the world frame.
+camera into the world frame, and normals against the ground-truth camera-space normals
+(gt/normals/<frame>.npy).
 """
 
 from __future__ import annotations
@@ -23,7 +24,9 @@ from surgsplat.data.scene import Camera
 from surgsplat.eval.geometry_metrics import backproject, depth_rmse, geometry_metrics
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
-from surgsplat.model.dynamic import render_time
+from surgsplat.eval.normals import normal_angle_deg, surface_normals
+from surgsplat.model.component import FrameTime
+from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
 
 GEOMETRY_KEYS = ("chamfer_mm", "p2s_mean_mm", "p2s_median_mm", "p2s_p95_mm", "fscore_1mm")
@@ -45,6 +48,10 @@ def mesh_path(scene_root: Path, index: int) -> Path:
     return scene_root / "gt" / "meshes" / f"{frame_stem(index)}.ply"
 
 
+def normals_path(scene_root: Path, index: int) -> Path:
+    return scene_root / "gt" / "normals" / f"{frame_stem(index)}.npy"
+
+
 def evaluate_run(run: TrainedRun, options: EvalOptions,
                  progress: Callable[[int, int], None] | None = None) -> dict:
     """All metrics of `run` as a JSON-ready dict (means over test frames); `progress(done,
@@ -54,10 +61,12 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
     lpips_model, lpips_reason = load_lpips(options.alexnet_weights)
     rows: dict[str, list[float]] = {}
+    angles: list[torch.Tensor] = []
+    normal_source = None
     render_seconds = 0.0
     for frame in frames:
         started = time.perf_counter()
-        out = render_time(run.model, frame.camera, frame.time, background)
+        out = render_frame(run.model, frame.camera, FrameTime(frame.index, frame.time), background)
         render_seconds += time.perf_counter() - started
         pred = out.rgb.clamp(0, 1)
         row = image_row(pred, frame.image, frame.tissue, lpips_model)
@@ -69,6 +78,11 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         if options.geometry and gt_mesh.is_file():
             row.update(frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
                                       gt_mesh, seed=frame.index))
+        gt_normals = normals_path(scene.root, frame.index)
+        if options.geometry and gt_normals.is_file():
+            normals, valid, normal_source = surface_normals(out, scene.camera.K)
+            truth = torch.from_numpy(np.load(gt_normals, allow_pickle=False))
+            angles.append(normal_angle_deg(normals, truth, valid & frame.tissue))
         for key, value in row.items():
             rows.setdefault(key, []).append(value)
         if progress:
@@ -77,6 +91,11 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     metrics: dict = {"test_frames": len(frames), "iteration": run.iteration}
     for key, values in rows.items():
         metrics[key] = float(np.mean(values))
+    if angles:
+        pooled = torch.cat(angles)
+        metrics["normal_error_deg_mean"] = float(pooled.mean())
+        metrics["normal_error_deg_median"] = float(pooled.median())
+        metrics["normal_source"] = normal_source
     if "depth_rmse" in metrics:
         unit = scene.depth_unit
         metrics[f"depth_rmse_{unit}" if unit == "mm" else "depth_rmse"] = metrics.pop("depth_rmse")
@@ -96,6 +115,8 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         "depth_rmse": "over tissue pixels with valid depth",
         "geometry": "rendered depth back-projected over tissue pixels with the frame's camera "
                     "into the world frame vs gt tissue mesh",
+        "normal_error_deg": "angle between rendered (or rendered-depth) and gt normals, "
+                            "orientation-free, pooled over the tissue pixels of all test frames",
         "fps": "rendering the test frames, this machine",
         "peak_rss_mb": "peak resident memory of the training process",
     }

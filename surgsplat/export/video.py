@@ -48,6 +48,17 @@ def colorize_depth(depth: np.ndarray, near: float, far: float) -> np.ndarray:
     return coloured
 
 
+def colorize_normals(normals: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Unit camera-space normals [H, W, 3] (OpenCV axes, facing away from the camera) -> uint8
+    RGB [H, W, 3] in the usual normal-map colours: the normal turned towards the viewer in
+    x-right, y-up, z-to-viewer axes, mapped from [-1, 1] to [0, 1]; a surface facing the camera
+    is (0.5, 0.5, 1) blue. Invalid pixels are black."""
+    display = normals * np.array([-1.0, 1.0, 1.0], dtype=normals.dtype)
+    coloured = to_uint8((display + 1.0) * 0.5)
+    coloured[~valid] = 0
+    return coloured
+
+
 def to_uint8(image: np.ndarray) -> np.ndarray:
     """Float RGB in [0, 1] -> uint8."""
     return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)

@@ -1,4 +1,4 @@
-"""The deformation-field interface: offsets of the canonical Gaussians at a time t in [0, 1].
+"""The deformation-field component: offsets of the canonical Gaussians at a time t in [0, 1].
 
 A field maps the canonical means [N, 3], the per-Gaussian attributes it keeps in
 `GaussianModel.params` (so that densification clones, splits and prunes them with the Gaussians)
@@ -10,6 +10,10 @@ Mean offsets are produced in units of `position_scale()`, half the diagonal of t
 cloud's bounding box (`set_bounds`), and scaled to scene units on output. One learning rate thus
 suits scenes in millimetres or metres, as 3DGS and Deform3DGS achieve by multiplying position
 learning rates by the scene extent.
+
+As a component (`surgsplat.model.component`), a field sets its bounds from the initial points,
+owns its per-Gaussian attributes and network parameters, moves the Gaussians in `transform`, and
+offers its regularisers as loss terms (weighted by the method's `losses` config).
 """
 
 from __future__ import annotations
@@ -18,7 +22,11 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
+
+from surgsplat.model.component import Component, FrameTime, SetupContext
+from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.state import GaussianState
 
 GEOMETRY_CHANNELS = 10
 """Deformed geometry channels: mean offset (3), log-scale offset (3), quaternion offset (4)."""
@@ -54,7 +62,7 @@ class Deformation:
                    d_quats=channels[:, 6:10], d_colors=d_colors)
 
 
-class DeformationField(nn.Module, ABC):
+class DeformationField(Component, ABC):
     """A deformation over time of N canonical Gaussians.
 
     Holds the canonical point cloud's bounding box as buffers (bounds_lo, bounds_hi [3], scene
@@ -81,6 +89,35 @@ class DeformationField(nn.Module, ABC):
         """Scalar: half the diagonal of the bounds, the unit of mean offsets before scaling."""
         return 0.5 * (self.bounds_hi - self.bounds_lo).norm().clamp_min(1e-6)
 
+    # ---- the component contract ----
+    def setup(self, context: SetupContext) -> None:
+        self.set_bounds(context.points.min(dim=0).values, context.points.max(dim=0).values)
+
+    def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
+        return self.per_gaussian_attributes(context.points.shape[0])
+
+    def transform(self, state: GaussianState, gaussians: GaussianModel,
+                  when: FrameTime) -> GaussianState:
+        """Offsets from the canonical means and the field's attributes, added to `state`."""
+        delta = self(gaussians.params["means"], dict(gaussians.params), when.time)
+        sh = state.sh
+        if delta.d_colors is not None:
+            sh = torch.cat([sh[:, :1] + delta.d_colors[:, None], sh[:, 1:]], dim=1)
+        return state.replace(means=state.means + delta.d_means,
+                             scales=state.scales * torch.exp(delta.d_log_scales),
+                             quats=state.quats + delta.d_quats, sh=sh)
+
+    def loss_names(self) -> tuple[str, ...]:
+        return self.regularisation_names()
+
+    def losses(self, context, active: frozenset[str]) -> dict[str, Tensor]:
+        return {name: value for name, value in self.regularisation().items() if name in active}
+
+    def regularisation_names(self) -> tuple[str, ...]:
+        """Names of the regularisers `regularisation()` returns."""
+        return ()
+
+    # ---- what each field defines ----
     @abstractmethod
     def per_gaussian_attributes(self, num: int) -> dict[str, Tensor]:
         """Initial learnable per-Gaussian tensors, name -> [num, ...], stored with the Gaussians."""
@@ -89,14 +126,6 @@ class DeformationField(nn.Module, ABC):
     def forward(self, means: Tensor, attributes: dict[str, Tensor], t: float) -> Deformation:
         """Offsets at time t of Gaussians with canonical means [N, 3] and their attributes."""
 
-    @abstractmethod
     def regularisation(self) -> dict[str, Tensor]:
-        """Named scalar regularisers, weighted by TrainConfig.regularisation."""
-
-    @abstractmethod
-    def param_groups(self) -> list[dict]:
-        """Optimiser groups of the field's own parameters: {"name", "params", "lr"} each."""
-
-    @abstractmethod
-    def attribute_lrs(self) -> dict[str, float]:
-        """Learning rate of each per-Gaussian attribute, by name."""
+        """Named scalar regularisers (loss terms, weighted by the method's `losses` config)."""
+        return {}

@@ -32,6 +32,7 @@ from torch import Tensor
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.deformation import Deformation, DeformationField, num_channels
+from surgsplat.model.component import ComponentConfig, SceneInfo
 
 WEIGHTS = "basis_weights"
 CENTRES = "basis_centres"
@@ -39,7 +40,7 @@ LOG_WIDTHS = "basis_log_widths"
 
 
 @dataclass
-class GaussianBasisConfig:
+class GaussianBasisConfig(ComponentConfig, kind="gaussian_basis"):
     """Basis size, initial width and learning rates of a Gaussian-basis field."""
 
     num_basis: int = 8
@@ -60,10 +61,11 @@ class GaussianBasisConfig:
     deform_color: bool = False
     """Also deform the SH DC colour."""
 
-    def for_frames(self, num_frames: int) -> "GaussianBasisConfig":
-        """This config for a clip of `num_frames`: at most one basis function per two frames,
-        so that the curves cannot interpolate the held-out times arbitrarily."""
-        return dataclasses.replace(self, num_basis=max(2, min(self.num_basis, num_frames // 2)))
+    def resolve(self, scene: SceneInfo) -> "GaussianBasisConfig":
+        """This config for the scene's clip: at most one basis function per two frames, so that
+        the curves cannot interpolate the held-out times arbitrarily."""
+        return dataclasses.replace(self,
+                                   num_basis=max(2, min(self.num_basis, scene.num_frames // 2)))
 
     def build(self) -> "GaussianBasisField":
         return GaussianBasisField(self)
@@ -98,12 +100,6 @@ class GaussianBasisField(DeformationField):
         basis = basis_values(attributes[CENTRES], attributes[LOG_WIDTHS], t)  # [N, B]
         channels = _WeightedSum.apply(weights, basis)  # [N, D]
         return Deformation.from_channels(channels, self.position_scale())
-
-    def regularisation(self) -> dict[str, Tensor]:
-        return {}
-
-    def param_groups(self) -> list[dict]:
-        return []
 
     def attribute_lrs(self) -> dict[str, float]:
         config = self.config

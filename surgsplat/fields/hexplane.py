@@ -26,6 +26,7 @@ from torch import Tensor, nn
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.deformation import Deformation, DeformationField, num_channels
+from surgsplat.model.component import ComponentConfig, ParamGroup, SceneInfo
 from surgsplat.render.native import Backend, native_module, resolve_backend
 
 SPATIAL_AXES = ((0, 1), (0, 2), (1, 2))
@@ -33,7 +34,7 @@ SPATIAL_AXES = ((0, 1), (0, 2), (1, 2))
 
 
 @dataclass
-class HexPlaneConfig:
+class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     """Resolutions, MLP size and learning rates of a HexPlane field."""
 
     base_resolution: int = 32
@@ -57,11 +58,11 @@ class HexPlaneConfig:
     deform_color: bool = False
     """Also deform the SH DC colour."""
 
-    def for_frames(self, num_frames: int) -> "HexPlaneConfig":
-        """This config for a clip of `num_frames`: time resolution at most half the frame count
-        (as 4DGS / EndoGaussian choose it), so held-out times are interpolated, not memorised."""
+    def resolve(self, scene: SceneInfo) -> "HexPlaneConfig":
+        """This config for the scene's clip: time resolution at most half the frame count (as
+        4DGS / EndoGaussian choose it), so held-out times are interpolated, not memorised."""
         return dataclasses.replace(
-            self, time_resolution=max(2, min(self.time_resolution, num_frames // 2)))
+            self, time_resolution=max(2, min(self.time_resolution, scene.num_frames // 2)))
 
     def build(self) -> "HexPlaneField":
         return HexPlaneField(self)
@@ -124,17 +125,16 @@ class HexPlaneField(DeformationField):
                               for plane in self.time_planes)
         return {"plane_tv": plane_tv, "time_smoothness": time_smoothness}
 
+    def regularisation_names(self) -> tuple[str, ...]:
+        return ("plane_tv", "time_smoothness")
+
     def per_gaussian_attributes(self, num: int) -> dict[str, Tensor]:
         return {}
 
-    def param_groups(self) -> list[dict]:
+    def param_groups(self) -> list[ParamGroup]:
         planes = [*self.spatial_planes, *self.time_planes]
-        return [{"name": "hexplane_grid", "params": planes, "lr": self.config.grid_lr},
-                {"name": "hexplane_mlp", "params": list(self.mlp.parameters()),
-                 "lr": self.config.mlp_lr}]
-
-    def attribute_lrs(self) -> dict[str, float]:
-        return {}
+        return [ParamGroup("hexplane_grid", planes, self.config.grid_lr),
+                ParamGroup("hexplane_mlp", list(self.mlp.parameters()), self.config.mlp_lr)]
 
 
 def plane_features(coords: Tensor, time: float, spatial_planes: list[Tensor],

@@ -3,24 +3,22 @@
 Depths are float [H, W] in the scene's depth unit (e.g. millimetres); a ground-truth depth of 0
 means "no measurement". Masks are bool [H, W] with True = count the pixel (tissue). Both losses
 average over the counted pixels and are 0 when there is none.
+
+`DepthLoss` is the component that applies one of them to the render's depth map (the expected
+depth of the compositing, or the depth a component puts in its place, e.g. EndoPlanar's unbiased
+plane depth).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Literal
+
 import torch
 from torch import Tensor
 
-
-def valid_depth_pixels(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
-    """[H, W] bool: masked pixels with a measured (positive) depth; ValueError when the depth
-    maps [H, W] and the bool mask [H, W] do not match."""
-    if pred_depth.shape != gt.shape or pred_depth.dim() != 2:
-        raise ValueError(f"expected two depth maps of one shape [H, W], got "
-                         f"{tuple(pred_depth.shape)} and {tuple(gt.shape)}")
-    if mask.shape != gt.shape or mask.dtype != torch.bool:
-        raise ValueError(f"expected a bool mask of shape {tuple(gt.shape)}, got {mask.dtype} "
-                         f"{tuple(mask.shape)}")
-    return mask & (gt > 0)
+from surgsplat.image.depth import valid_depth_pixels
+from surgsplat.model.component import Component, ComponentConfig, RenderContext
 
 
 def _mean_over(errors: Tensor, valid: Tensor) -> Tensor:
@@ -35,7 +33,9 @@ def depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
 
 
 def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
-    """Mean |1/pred - 1/gt| (1 / depth units) over masked pixels with gt > 0 and pred > 0.
+    """Mean |1/pred - 1/gt| over masked pixels with gt > 0 and pred > 0, times the median
+    measured depth of those pixels: unit-free (about the relative depth error), so that one
+    weight suits scenes in millimetres or metres.
 
     Pixels the render leaves at depth 0 (nothing drawn) have no inverse depth and are skipped.
     """
@@ -43,4 +43,37 @@ def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     # Invalid pixels get depth 1 before inverting, so that no inf or nan enters the graph.
     safe_pred = torch.where(valid, pred_depth, torch.ones_like(pred_depth))
     safe_gt = torch.where(valid, gt, torch.ones_like(gt))
-    return _mean_over((1.0 / safe_pred - 1.0 / safe_gt).abs(), valid)
+    if not valid.any():
+        return (pred_depth * 0.0).sum()
+    reference = gt[valid].median()
+    return reference * _mean_over((1.0 / safe_pred - 1.0 / safe_gt).abs(), valid)
+
+
+@dataclass
+class DepthLossConfig(ComponentConfig, kind="depth_loss"):
+    """How the rendered depth is compared with the measured depth."""
+
+    form: Literal["l1", "inverse_l1"] = "l1"
+    """L1 on depth, or L1 on inverse depth (EndoPlanar Eq. 9)."""
+
+    def build(self) -> "DepthLoss":
+        return DepthLoss(self)
+
+
+class DepthLoss(Component):
+    """Loss term "depth": the configured depth loss over the frame's tissue pixels with a measured
+    depth; 0 for frames without depth."""
+
+    def __init__(self, config: DepthLossConfig):
+        super().__init__()
+        self.config = config
+
+    def loss_names(self) -> tuple[str, ...]:
+        return ("depth",)
+
+    def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
+        frame, output = context.frame, context.output
+        if frame.depth is None:
+            return {"depth": output.depth.sum() * 0.0}
+        loss = depth_l1 if self.config.form == "l1" else inverse_depth_l1
+        return {"depth": loss(output.depth, frame.depth, frame.tissue)}

@@ -9,10 +9,13 @@ images, whatever the tool pixels held.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
-from surgsplat.eval.ssim import ssim
+from surgsplat.image.ssim import ssim
+from surgsplat.model.component import Component, ComponentConfig, RenderContext
 
 
 def _check(pred: Tensor, gt: Tensor, mask: Tensor) -> None:
@@ -49,3 +52,30 @@ def photometric_loss(pred: Tensor, gt: Tensor, mask: Tensor, lambda_dssim: float
     if lambda_dssim == 0:
         return loss
     return (1.0 - lambda_dssim) * loss + lambda_dssim * d_ssim(pred, gt, mask)
+
+
+@dataclass
+class PhotometricConfig(ComponentConfig, kind="photometric_loss"):
+    """The photometric loss of a method."""
+
+    lambda_dssim: float = 0.2
+    """Weight of D-SSIM against L1 (3DGS uses 0.2; 0 = L1 only, as EndoPlanar Eq. 9)."""
+
+    def build(self) -> "PhotometricLoss":
+        return PhotometricLoss(self)
+
+
+class PhotometricLoss(Component):
+    """Loss term "photometric": `photometric_loss` of the rendered colour over tissue pixels."""
+
+    def __init__(self, config: PhotometricConfig):
+        super().__init__()
+        self.config = config
+
+    def loss_names(self) -> tuple[str, ...]:
+        return ("photometric",)
+
+    def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
+        frame = context.frame
+        return {"photometric": photometric_loss(context.output.rgb, frame.image, frame.tissue,
+                                                self.config.lambda_dssim)}

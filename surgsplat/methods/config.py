@@ -1,20 +1,21 @@
-"""A method is one typed configuration; presets (see registry.py) only change its values."""
+"""A method is one typed configuration: named components plus the settings every method has.
+Presets (registry.py) only change its values; `overrides.py` applies a user's changes.
+"""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
-import typing
 from dataclasses import dataclass, field
 from typing import Any
 
-from surgsplat.errors import SurgsplatError
-from surgsplat.fields.gaussian_basis import GaussianBasisConfig
-from surgsplat.fields.hexplane import HexPlaneConfig
-from surgsplat.model.exposure import ExposureConfig
+from surgsplat.model.component import ComponentConfig, SceneInfo
 from surgsplat.model.gaussians import GaussianConfig
 from surgsplat.model.init_points import InitConfig
-from surgsplat.train.config import TrainConfig
-from surgsplat.train.strategy import DensifyConfig
+from surgsplat.methods.settings import DensifyConfig, LossWeight, TrainConfig
+
+KIND_KEY = "kind"
+"""Key naming a component's registered kind in a saved config."""
 
 
 @dataclass
@@ -23,8 +24,10 @@ class MethodConfig:
 
     name: str
     """Preset this configuration started from."""
-    deformation: HexPlaneConfig | GaussianBasisConfig
-    """Deformation field over time."""
+    components: dict[str, ComponentConfig] = field(default_factory=dict)
+    """The method's components by name, applied in this order (deformation first)."""
+    losses: dict[str, LossWeight] = field(default_factory=dict)
+    """Weight of every loss term the components declare, by term name."""
     gaussians: GaussianConfig = field(default_factory=GaussianConfig)
     """Canonical Gaussians."""
     init: InitConfig = field(default_factory=InitConfig)
@@ -33,28 +36,28 @@ class MethodConfig:
     """Optimisation."""
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     """Densification and pruning."""
-    exposure: ExposureConfig = field(default_factory=ExposureConfig)
-    """Per-time exposure gain of the rendered image."""
+
+    def resolved(self, scene: SceneInfo) -> "MethodConfig":
+        """A copy adapted to `scene`: every component's `resolve`, and the initial point count
+        capped at half the Gaussian budget (leaving room for densification). The input is left
+        unchanged; resolving a resolved config changes nothing."""
+        config = copy.deepcopy(self)
+        config.components = {name: component.resolve(scene)
+                              for name, component in config.components.items()}
+        budget = config.gaussians.cap(scene.width, scene.height)
+        config.init.max_points = min(config.init.max_points, budget // 2)
+        return config
 
 
-def to_dict(config: Any) -> dict:
-    """A JSON-ready dict of a (nested) config dataclass."""
-    return dataclasses.asdict(config)
-
-
-def update_from_dict(config: Any, values: dict, where: str = "config") -> Any:
-    """A copy of dataclass `config` with `values` (a nested dict, e.g. a saved config.json)
-    applied; unknown keys raise SurgsplatError naming them."""
-    hints = typing.get_type_hints(type(config))
-    changes = {}
-    for key, value in values.items():
-        if key not in hints:
-            raise SurgsplatError(f"{where}: unknown setting {key!r}")
-        current = getattr(config, key)
-        if dataclasses.is_dataclass(current) and isinstance(value, dict):
-            changes[key] = update_from_dict(current, value, f"{where}.{key}")
-        elif isinstance(current, tuple) and isinstance(value, list):
-            changes[key] = tuple(value)
-        else:
-            changes[key] = value
-    return dataclasses.replace(config, **changes)
+def to_dict(config: Any) -> Any:
+    """A JSON-ready form of a (nested) config: dataclasses as dicts, components with their kind."""
+    if dataclasses.is_dataclass(config):
+        values = {f.name: to_dict(getattr(config, f.name)) for f in dataclasses.fields(config)}
+        if isinstance(config, ComponentConfig):
+            values = {KIND_KEY: config.kind, **values}
+        return values
+    if isinstance(config, dict):
+        return {key: to_dict(value) for key, value in config.items()}
+    if isinstance(config, (tuple, list)):
+        return [to_dict(value) for value in config]
+    return config

@@ -1,34 +1,73 @@
-"""Named method presets: each returns a MethodConfig; none has logic of its own."""
+"""Named method presets: each returns a MethodConfig of components and values; none has logic.
+
+`PRESETS` maps a name to a `Preset` (a one-line description and the function that builds the
+config); `surgsplat methods` lists them.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.fields.hexplane import HexPlaneConfig
+from surgsplat.losses.depth import DepthLossConfig
+from surgsplat.losses.photometric import PhotometricConfig
 from surgsplat.methods.config import MethodConfig
+from surgsplat.methods.settings import LossWeight
+from surgsplat.model.exposure import ExposureConfig
+from surgsplat.model.gaussians import GaussianConfig
 from surgsplat.model.init_points import InitConfig
-from surgsplat.train.config import TrainConfig
+from surgsplat.model.planar import PlanarConfig
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named method."""
+
+    description: str
+    build: Callable[[], MethodConfig]
 
 
 def deform3dgs() -> MethodConfig:
-    """Deform3DGS baseline: per-Gaussian Gaussian-basis deformation, motion-aware point fusion."""
-    return MethodConfig(name="deform3dgs", deformation=GaussianBasisConfig(),
-                        init=InitConfig(fusion="mapf"))
+    return MethodConfig(
+        name="deform3dgs",
+        components={"deformation": GaussianBasisConfig(), "exposure": ExposureConfig(),
+                    "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05)},
+        init=InitConfig(fusion="mapf"))
 
 
 def endogaussian() -> MethodConfig:
-    """EndoGaussian baseline: HexPlane deformation field with plane TV regularisation."""
-    return MethodConfig(name="endogaussian", deformation=HexPlaneConfig(),
-                        init=InitConfig(fusion="mapf"),
-                        train=TrainConfig(regularisation={"plane_tv": 1e-4,
-                                                          "time_smoothness": 1e-3}))
+    return MethodConfig(
+        name="endogaussian",
+        components={"deformation": HexPlaneConfig(), "exposure": ExposureConfig(),
+                    "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05),
+                "plane_tv": LossWeight(1e-4), "time_smoothness": LossWeight(1e-3)},
+        init=InitConfig(fusion="mapf"))
 
 
-PRESETS: dict[str, Callable[[], MethodConfig]] = {
-    "deform3dgs": deform3dgs,
-    "endogaussian": endogaussian,
+def endoplanar() -> MethodConfig:
+    return MethodConfig(
+        name="endoplanar",
+        components={"deformation": GaussianBasisConfig(), "exposure": ExposureConfig(),
+                    "planar": PlanarConfig(), "photometric": PhotometricConfig(),
+                    "depth": DepthLossConfig(form="inverse_l1")},
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(5.0),
+                "flatten": LossWeight(100.0), "normal": LossWeight(0.05, start_iter=500)},
+        gaussians=GaussianConfig(init_thickness=0.01),
+        init=InitConfig(fusion="mogf"))
+
+
+PRESETS: dict[str, Preset] = {
+    "deform3dgs": Preset("Deform3DGS baseline: per-Gaussian Gaussian-basis deformation, "
+                         "motion-aware point fusion, L1 + D-SSIM and depth L1", deform3dgs),
+    "endogaussian": Preset("EndoGaussian baseline: HexPlane deformation field with plane TV and "
+                           "time smoothness", endogaussian),
+    "endoplanar": Preset("EndoPlanar: flattened Gaussians with unbiased plane depth, inverse-depth "
+                         "loss, edge-aware depth-normal loss, MOG2 point fusion", endoplanar),
 }
 
 
@@ -36,4 +75,4 @@ def method_config(name: str) -> MethodConfig:
     """The preset called `name`; SurgsplatError listing the known ones otherwise."""
     if name not in PRESETS:
         raise SurgsplatError(f"unknown method {name!r}; known: {', '.join(sorted(PRESETS))}")
-    return PRESETS[name]()
+    return PRESETS[name].build()

@@ -1,82 +1,103 @@
-"""Canonical Gaussians plus a deformation field: the Gaussians of any time t as plain tensors.
+"""Canonical Gaussians plus the components of a method: the Gaussians of any frame as plain
+tensors, and their render.
 
-The renderer takes tensors, never this module: `state_at(t)` is the seam between them.
+The renderer takes tensors, never this module: `state_at(when)` is the seam between them. The
+model knows components only through the contract of `surgsplat.model.component`.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 
 from surgsplat.data.scene import Camera
-from surgsplat.fields.deformation import DeformationField
-from surgsplat.model.exposure import ExposureCurve
+from surgsplat.errors import SurgsplatError
+from surgsplat.model.component import Component, FrameTime, ParamGroup, RenderContext
 from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.state import GaussianState
 from surgsplat.render.render import RenderOutput, render
 
 
-@dataclass
-class GaussianState:
-    """The Gaussians at one time, ready to render."""
+class SplatModel(nn.Module):
+    """Canonical Gaussians and named components, applied in order."""
 
-    means: Tensor  # [N, 3] camera/world space, scene units
-    scales: Tensor  # [N, 3] linear scales
-    quats: Tensor  # [N, 4] (w, x, y, z), not normalised
-    opacities: Tensor  # [N] in (0, 1)
-    sh: Tensor  # [N, K, 3] spherical-harmonic colour coefficients
-    sh_degree: int
-
-
-class DeformableGaussians(nn.Module):
-    """Canonical Gaussians deformed over time t in [0, 1], seen through an exposure curve."""
-
-    def __init__(self, gaussians: GaussianModel, field: DeformationField,
-                 exposure: ExposureCurve):
+    def __init__(self, gaussians: GaussianModel, components: dict[str, Component]):
         super().__init__()
         self.gaussians = gaussians
-        self.field = field
-        self.exposure = exposure
+        self.components = nn.ModuleDict(components)
 
-    def render(self, camera: Camera, t: float, background: Tensor | None = None,
-               absgrad: Tensor | None = None, planar_depth: bool = False) -> RenderOutput:
-        """The view at time t; rgb includes the exposure gain of time t."""
-        out = render_state(self.state_at(t), camera, background, absgrad, planar_depth)
-        out.rgb = out.rgb * self.exposure.gain(t)
-        return out
-
-    def state_at(self, t: float) -> GaussianState:
-        params = self.gaussians.params
-        delta = self.field(params["means"], self.gaussians.attributes, t)
-        return GaussianState(
-            means=params["means"] + delta.d_means,
-            scales=torch.exp(params["log_scales"] + delta.d_log_scales),
-            quats=params["quats"] + delta.d_quats,
-            opacities=torch.sigmoid(params["opacity_logits"]),
-            sh=self.gaussians.sh_coeffs(delta.d_colors),
-            sh_degree=self.gaussians.sh_degree,
-        )
-
+    # ---- the Gaussians at a moment ----
     def canonical_state(self) -> GaussianState:
+        """The canonical Gaussians before any component."""
         params = self.gaussians.params
         return GaussianState(means=params["means"], scales=params["log_scales"].exp(),
                              quats=params["quats"],
                              opacities=torch.sigmoid(params["opacity_logits"]),
                              sh=self.gaussians.sh_coeffs(), sh_degree=self.gaussians.sh_degree)
 
+    def state_at(self, when: FrameTime) -> GaussianState:
+        """The Gaussians at `when`: the canonical state through every component's transform."""
+        state = self.canonical_state()
+        for component in self.components.values():
+            state = component.transform(state, self.gaussians, when)
+        return state
 
-def render_state(state: GaussianState, camera: Camera, background: Tensor | None = None,
-                 absgrad: Tensor | None = None, planar_depth: bool = False) -> RenderOutput:
-    """Render Gaussians `state` seen by `camera`: rgb [H,W,3], alpha, depth and more."""
-    return render(state.means, state.scales, state.quats, state.opacities, state.sh, camera.K,
-                  camera.width, camera.height, world_to_camera=camera.world_to_camera,
-                  sh_degree=state.sh_degree, planar_depth=planar_depth, background=background,
-                  absgrad=absgrad)
+    def render(self, camera: Camera, when: FrameTime, background: Tensor | None = None,
+               absgrad: Tensor | None = None) -> tuple[RenderOutput, GaussianState]:
+        """The view of `camera` at `when`, with every component's channels and derived maps,
+        and the Gaussians that were rendered."""
+        state = self.state_at(when)
+        channels: dict[str, Tensor] = {}
+        for name, component in self.components.items():
+            for key, value in component.render_channels(state, self.gaussians, camera, when).items():
+                if key in channels:
+                    raise SurgsplatError(f"component {name!r} renders channel {key!r}, which "
+                                         "another component already renders")
+                channels[key] = value
+        output = render(state.means, state.scales, state.quats, state.opacities, state.sh,
+                        camera.K, camera.width, camera.height,
+                        world_to_camera=camera.world_to_camera, sh_degree=state.sh_degree,
+                        extras=channels, background=background, absgrad=absgrad)
+        for component in self.components.values():
+            component.finish_render(output, camera, when)
+        return output, state
+
+    # ---- what training needs ----
+    def loss_terms(self) -> dict[str, str]:
+        """Every loss term name -> the component that computes it."""
+        owners: dict[str, str] = {}
+        for name, component in self.components.items():
+            for term in component.loss_names():
+                if term in owners:
+                    raise SurgsplatError(f"loss term {term!r} is declared by both components "
+                                         f"{owners[term]!r} and {name!r}")
+                owners[term] = name
+        return owners
+
+    def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
+        """The active loss terms of every component, unweighted."""
+        terms: dict[str, Tensor] = {}
+        for component in self.components.values():
+            wanted = active.intersection(component.loss_names())
+            if wanted:
+                terms.update(component.losses(context, frozenset(wanted)))
+        return terms
+
+    def attribute_lrs(self) -> dict[str, float]:
+        """Learning rates of the components' per-Gaussian attributes, by attribute name."""
+        lrs: dict[str, float] = {}
+        for component in self.components.values():
+            lrs.update(component.attribute_lrs())
+        return lrs
+
+    def component_param_groups(self) -> list[ParamGroup]:
+        """Optimiser groups of every component's own parameters."""
+        return [group for component in self.components.values()
+                for group in component.param_groups()]
 
 
 @torch.no_grad()
-def render_time(model: DeformableGaussians, camera: Camera, t: float,
-                background: Tensor | None = None) -> RenderOutput:
-    """Render the model at time t (no gradients), e.g. for evaluation and videos."""
-    return model.render(camera, t, background)
+def render_frame(model: SplatModel, camera: Camera, when: FrameTime,
+                 background: Tensor | None = None) -> RenderOutput:
+    """Render the model at `when` without gradients, e.g. for evaluation and videos."""
+    return model.render(camera, when, background)[0]

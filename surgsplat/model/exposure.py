@@ -3,6 +3,7 @@
 Endoscopes change exposure over time (auto-exposure, light-source power); tissue colour should
 not. The gain is exp(g(t)) per colour channel, g piecewise linear in t over `knots` evenly
 spaced knots, so test frames between training frames get an interpolated exposure.
+As a component it multiplies the rendered colour by the gain of the frame's time.
 """
 
 from __future__ import annotations
@@ -13,9 +14,11 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from surgsplat.model.component import Component, ComponentConfig, FrameTime, ParamGroup, SceneInfo
+
 
 @dataclass
-class ExposureConfig:
+class ExposureConfig(ComponentConfig, kind="exposure"):
     """The exposure curve of a run."""
 
     knots: int = 16
@@ -23,17 +26,27 @@ class ExposureConfig:
     lr: float = 5e-3
     """Adam learning rate of the log-gains."""
 
-    def for_frames(self, num_frames: int) -> "ExposureConfig":
-        """This config for a clip of `num_frames`: at most one knot per two frames."""
-        return dataclasses.replace(self, knots=min(self.knots, num_frames // 2))
+    def resolve(self, scene: SceneInfo) -> "ExposureConfig":
+        """This config for the scene's clip: at most one knot per two frames."""
+        return dataclasses.replace(self, knots=min(self.knots, scene.num_frames // 2))
+
+    def build(self) -> "ExposureCurve":
+        return ExposureCurve(self)
 
 
-class ExposureCurve(nn.Module):
+class ExposureCurve(Component):
     """Per-channel log-gain g(t), linear between `knots` evenly spaced knots; starts at 0."""
 
     def __init__(self, config: ExposureConfig):
         super().__init__()
+        self.config = config
         self.log_gains = nn.Parameter(torch.zeros(max(config.knots, 0), 3))  # [K, 3]
+
+    def param_groups(self) -> list[ParamGroup]:
+        return [ParamGroup("exposure", [self.log_gains], self.config.lr)]
+
+    def finish_render(self, output, camera, when: FrameTime) -> None:
+        output.rgb = output.rgb * self.gain(when.time)
 
     def gain(self, t: float) -> Tensor:
         """[3] multiplicative gain at time t (ones without knots)."""

@@ -7,6 +7,7 @@ clone, split and prune Gaussians with one mechanism.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -26,7 +27,10 @@ class GaussianConfig:
     init_opacity: float = 0.3
     """Opacity of every Gaussian at initialisation."""
     init_scale_factor: float = 0.8
-    """Initial isotropic scale = this x the mean distance to the 3 nearest neighbours."""
+    """Initial scale = this x the mean distance to the 3 nearest neighbours."""
+    init_thickness: float = 1.0
+    """Initial third scale axis (the camera's z: tissue faces the camera) as a fraction of the
+    other two; 1 = isotropic, small = flat discs, as EndoPlanar starts its planar Gaussians."""
     max_gaussians: int = 150_000
     """Hard cap on the number of Gaussians (densification stops adding beyond it)."""
     max_per_pixel: float = 0.25
@@ -82,7 +86,8 @@ class GaussianModel(nn.Module):
         opacity = torch.full((n,), config.init_opacity)
         params = {
             "means": points.float().clone(),
-            "log_scales": scale.log()[:, None].repeat(1, 3).float(),
+            "log_scales": (scale.log()[:, None].repeat(1, 3)
+                           + torch.tensor([0.0, 0.0, math.log(config.init_thickness)])).float(),
             "quats": quats,
             "opacity_logits": torch.logit(opacity),
             "sh_dc": rgb_to_sh_dc(colors.float()),

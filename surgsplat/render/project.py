@@ -158,14 +158,3 @@ def _native_project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, wid
         means, scales, quats, camera_args)
     return Projection(means2d=means2d, conics=conics, depths=depths, radii=radii,
                       means_camera=means_camera, rotations_camera=rotations_camera)
-
-
-def camera_ray_directions(K: Tensor, width: int, height: int) -> Tensor:
-    """[H, W, 3] rays K^-1 [u, v, 1] through the pixel centres (z component 1)."""
-    K = K.to(torch.float32)
-    u = torch.arange(width, dtype=torch.float32) + 0.5
-    v = torch.arange(height, dtype=torch.float32) + 0.5
-    vv, uu = torch.meshgrid(v, u, indexing="ij")
-    return torch.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1],
-                        torch.ones_like(uu)], dim=-1)
-

@@ -1,8 +1,8 @@
 """`render(...)`: Gaussians in, colour, alpha, depth and any extra channels out, in one pass.
 
-Everything is rendered as channels of one rasterisation: colour (3), camera depth (1), the
-requested per-Gaussian extras, and, for planar Gaussians, the camera-space normal (3) and plane
-distance (1) that give the unbiased depth of EndoPlanar Eq. 5-6.
+Everything is rendered as channels of one rasterisation: colour (3), camera depth (1) and the
+requested per-Gaussian extras (normals, plane distances, semantic logits, ...; see planar.py for
+the planar normal and distance channels of EndoPlanar).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from surgsplat.render.project import Projection, camera_ray_directions, project
+from surgsplat.render.project import Projection, project
 from surgsplat.render.rasterize import Backend, rasterize
 from surgsplat.render.sh import eval_sh
 
@@ -29,31 +29,19 @@ class RenderOutput:
     depth: Tensor  # [H, W] expected camera depth of the visible surface (sum w z / alpha)
     projection: Projection  # the screen-space Gaussians (radii, means2d, ...)
     extras: dict[str, Tensor] = field(default_factory=dict)  # name -> [H, W, k], alpha-blended
-    normal: Tensor | None = None  # [H, W, 3] blended camera-space normal (planar_depth only)
-    plane_depth: Tensor | None = None  # [H, W] unbiased depth D_perp / (N . ray) (planar only)
-
-
-def gaussian_normals(projection: Projection, scales: Tensor) -> Tensor:
-    """[N, 3] camera-space axis of each Gaussian's smallest scale, flipped to face away from
-    the camera (n . mean > 0), as EndoPlanar/PGSR define the normal of a flattened Gaussian."""
-    smallest = torch.argmin(scales, dim=1)
-    axes = projection.rotations_camera  # [N, 3, 3], axes as columns
-    normals = torch.gather(axes, 2, smallest[:, None, None].expand(-1, 3, 1)).squeeze(2)
-    facing = (normals * projection.means_camera).sum(1, keepdim=True)
-    return torch.where(facing < 0, -normals, normals)
 
 
 def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colors: Tensor,
            K: Tensor, width: int, height: int, world_to_camera: Tensor | None = None,
            sh_degree: int | None = None, extras: dict[str, Tensor] | None = None,
-           planar_depth: bool = False, background: Tensor | None = None,
+           background: Tensor | None = None,
            absgrad: Tensor | None = None, backend: Backend = "auto",
            near: float = 0.01) -> RenderOutput:
     """Render Gaussians: means [N,3], scales [N,3] (linear), quats [N,4] (w,x,y,z), opacities [N],
     colors [N,3] RGB, or [N,K,3] SH coefficients when sh_degree is given.
 
-    extras: name -> [N] or [N,k] per-Gaussian values to alpha-blend (semantic logits, ...).
-    planar_depth: also render normal and plane distance and the unbiased plane depth.
+    extras: name -> [N] or [N,k] per-Gaussian values to alpha-blend (normals, semantic logits, ...);
+    they come back in RenderOutput.extras as [H, W, k].
     background [3]: colour behind the Gaussians (black when None). absgrad [N]: see rasterize.
     """
     projection = project(means, scales, quats, K, width, height, world_to_camera, near=near,
@@ -69,10 +57,6 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
     extras = extras or {}
     for value in extras.values():
         channels.append(value.reshape(value.shape[0], -1))
-    if planar_depth:
-        normals = gaussian_normals(projection, scales)
-        plane_distance = (normals * projection.means_camera).sum(1, keepdim=True)
-        channels += [normals, plane_distance]
     features = torch.cat(channels, dim=1)
     image, alpha = rasterize(projection.means2d, projection.conics, opacities, features,
                              projection.depths, projection.radii, width, height,
@@ -88,13 +72,4 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
         k = value.reshape(value.shape[0], -1).shape[1]
         out.extras[name] = image[..., offset:offset + k]
         offset += k
-    if planar_depth:
-        out.normal = image[..., offset:offset + 3]
-        distance = image[..., offset + 3]
-        rays = camera_ray_directions(K, width, height).to(image)
-        denominator = (out.normal * rays).sum(-1)
-        safe = denominator.abs() > 1e-6
-        out.plane_depth = torch.where(
-            safe, distance / torch.where(safe, denominator, torch.ones_like(denominator)),
-            torch.zeros_like(distance))
     return out

@@ -1,4 +1,4 @@
-"""Checkpoints: written atomically, read without executing code.
+"""Checkpoints: written atomically, read without executing code, and the model they hold.
 
 A checkpoint is a torch.save'd dict of tensors, numbers, strings, lists and dicts only, so it is
 read with `torch.load(weights_only=True)`, which refuses anything that would run code.
@@ -12,6 +12,10 @@ from pathlib import Path
 import torch
 
 from surgsplat.errors import DataError
+from surgsplat.methods.config import MethodConfig
+from surgsplat.model.component import Component
+from surgsplat.model.dynamic import SplatModel
+from surgsplat.model.gaussians import GaussianModel
 
 
 def save_atomic(state: dict, path: Path) -> None:
@@ -37,3 +41,40 @@ def load_checkpoint(path: Path) -> dict:
     if not isinstance(state, dict) or "iteration" not in state:
         raise DataError(path, "is not a surgsplat checkpoint (no 'iteration' entry)")
     return state
+
+
+def build_components(config: MethodConfig) -> dict[str, Component]:
+    """A fresh component of each of the method's component configs, by name."""
+    return {name: component.build() for name, component in config.components.items()}
+
+
+def model_state(config: MethodConfig, model: SplatModel) -> dict:
+    """The checkpoint entries that hold a model: its Gaussians and each component's state."""
+    return {
+        "method": config.name,
+        "gaussians": {name: value.detach() for name, value in model.gaussians.params.items()},
+        "sh_degree": model.gaussians.sh_degree,
+        "components": {name: component.state_dict()
+                       for name, component in model.components.items()},
+    }
+
+
+def model_from_state(config: MethodConfig, state: dict, path: Path) -> SplatModel:
+    """Rebuild the model a checkpoint `state` (read from `path`) holds, for the method `config`;
+    DataError naming the file when the checkpoint belongs to another method or layout."""
+    saved = state.get("method")
+    if saved != config.name:
+        raise DataError(path, f"holds a {saved!r} run, not {config.name!r}")
+    components = build_components(config)
+    stored = state.get("components", {})
+    if set(stored) != set(components):
+        raise DataError(path, f"holds components {sorted(stored)}, but the method has "
+                              f"{sorted(components)}")
+    for name, component in components.items():
+        try:
+            component.load_state_dict(stored[name])
+        except RuntimeError as err:
+            raise DataError(path, f"component {name!r} does not match the run's config "
+                                  f"({str(err).splitlines()[0]})") from err
+    gaussians = GaussianModel(state["gaussians"], int(state["sh_degree"]))
+    return SplatModel(gaussians, components)

@@ -8,12 +8,11 @@ from pathlib import Path
 
 from surgsplat.data.scene import Scene, load_scene
 from surgsplat.errors import DataError
-from surgsplat.methods.config import MethodConfig, update_from_dict
+from surgsplat.methods.config import MethodConfig
+from surgsplat.methods.overrides import method_from_values
 from surgsplat.methods.registry import method_config
-from surgsplat.model.dynamic import DeformableGaussians
-from surgsplat.model.exposure import ExposureCurve
-from surgsplat.model.gaussians import GaussianModel
-from surgsplat.train.checkpoint import load_checkpoint
+from surgsplat.model.dynamic import SplatModel
+from surgsplat.train.checkpoint import load_checkpoint, model_from_state
 from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, SCENE_FILE
 
 
@@ -29,7 +28,7 @@ def read_run_config(run_dir: Path) -> MethodConfig:
         raise DataError(path, f"is not valid JSON ({err})") from err
     if not isinstance(saved, dict) or "name" not in saved:
         raise DataError(path, "expected a saved method configuration with a 'name'")
-    return update_from_dict(method_config(saved["name"]), saved, where=str(path))
+    return method_from_values(saved, method_config(saved["name"]), where=str(path))
 
 
 def read_run_scene(run_dir: Path, data_dir: Path | None = None) -> Scene:
@@ -49,7 +48,7 @@ class TrainedRun:
     run_dir: Path
     config: MethodConfig
     scene: Scene
-    model: DeformableGaussians
+    model: SplatModel
     iteration: int
     train_seconds: float
     peak_rss_mb: float  # of the training process
@@ -59,13 +58,9 @@ def load_trained_run(run_dir: Path, data_dir: Path | None = None) -> TrainedRun:
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)
     scene = read_run_scene(run_dir, data_dir)
-    state = load_checkpoint(run_dir / CHECKPOINT)
-    field = config.deformation.build()
-    field.load_state_dict(state["field"])
-    exposure = ExposureCurve(config.exposure)
-    exposure.load_state_dict(state["exposure"])
-    model = DeformableGaussians(GaussianModel(state["gaussians"], state["sh_degree"]), field,
-                                exposure)
+    path = run_dir / CHECKPOINT
+    state = load_checkpoint(path)
+    model = model_from_state(config, state, path)
     model.eval()
     return TrainedRun(run_dir=run_dir, config=config, scene=scene, model=model,
                       iteration=int(state["iteration"]),

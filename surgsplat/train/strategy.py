@@ -8,43 +8,14 @@ gradients, splits large ones, prunes transparent or oversized ones, and resets o
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
+from surgsplat.methods.settings import DensifyConfig
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.per_gaussian import MOMENT_KEYS, append_gaussians, keep_gaussians
-
-
-@dataclass
-class DensifyConfig:
-    """When and how Gaussians are added and removed."""
-
-    start_iter: int = 300
-    """First iteration at which densification may run."""
-    stop_iter: int = 2000
-    """No densification or opacity reset after this iteration (pruning stops too)."""
-    every: int = 100
-    """Densify and prune every this many iterations."""
-    grad_threshold: float = 0.002
-    """Mean absolute screen-space gradient (NDC-scaled, per visible step) above which a Gaussian
-    is densified."""
-    percent_dense: float = 0.01
-    """Gaussians larger than this share of the scene extent are split, smaller ones cloned."""
-    split_factor: float = 1.6
-    """A split Gaussian's two children have the parent's scale divided by this."""
-    min_opacity: float = 0.005
-    """Prune Gaussians less opaque than this."""
-    max_world_scale: float = 0.1
-    """Prune Gaussians larger than this share of the scene extent."""
-    max_screen_radius: float = 0.0
-    """Prune Gaussians whose projected radius exceeded this many pixels (0 = no limit)."""
-    opacity_reset_every: int = 3000
-    """Reset opacities to reset_opacity every this many iterations (0 = never)."""
-    reset_opacity: float = 0.01
-    """Opacity ceiling applied by a reset."""
 
 
 class DensifyStrategy:

@@ -1,8 +1,9 @@
-"""The training loop: one random training frame per step, densification by a Strategy object,
-atomic checkpoints, resume, and a checkpoint on Ctrl-C.
+"""The training loop: one random training frame per step, the method's components and weighted
+loss terms, densification by a Strategy object, atomic checkpoints, resume, and a checkpoint on
+Ctrl-C. The loop knows components only through their contract (`surgsplat.model.component`).
 
 A run folder holds config.json (the resolved MethodConfig), scene.txt (the scene path),
-checkpoints/latest.pt, and train_log.jsonl (one JSON line per logged step).
+checkpoints/latest.pt, and train_log.jsonl (one JSON line per logged step, with every loss term).
 """
 
 from __future__ import annotations
@@ -12,27 +13,29 @@ import math
 import resource
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
 from surgsplat.data.scene import Frame, Scene
-from surgsplat.losses.depth import depth_l1, inverse_depth_l1
-from surgsplat.losses.photometric import photometric_loss
+from surgsplat.errors import SurgsplatError
 from surgsplat.methods.config import MethodConfig, to_dict
-from surgsplat.model.dynamic import DeformableGaussians
-from surgsplat.model.exposure import ExposureCurve
+from surgsplat.methods.settings import LossWeight
+from surgsplat.model.component import FrameTime, ParamGroup, RenderContext, SceneInfo, SetupContext
+from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.init_points import initial_points
-from surgsplat.train.checkpoint import load_checkpoint, save_atomic
+from surgsplat.train.checkpoint import (build_components, load_checkpoint, model_from_state,
+                                        model_state, save_atomic)
 from surgsplat.train.strategy import DensifyStrategy
 
 CONFIG_FILE = "config.json"
 SCENE_FILE = "scene.txt"
 CHECKPOINT = "checkpoints/latest.pt"
 LOG_FILE = "train_log.jsonl"
+LOG_EVERY = 10
 
 
 @dataclass
@@ -44,6 +47,7 @@ class StepStats:
     psnr: float  # over tissue pixels of the training frame
     num_gaussians: int
     seconds: float  # wall time since training started (this process plus resumed runs)
+    terms: dict[str, float] = field(default_factory=dict)  # unweighted value of each loss term
 
 
 def current_peak_rss_mb() -> float:
@@ -55,63 +59,96 @@ def psnr_from_mse(mse: float) -> float:
     return -10.0 * math.log10(max(mse, 1e-12))
 
 
+def scene_info(scene: Scene) -> SceneInfo:
+    """What components may know of `scene`."""
+    first = scene.frames[0]
+    return SceneInfo(num_frames=len(scene.frames), width=first.image.shape[1],
+                     height=first.image.shape[0],
+                     train_indices=tuple(frame.index for frame in scene.train_frames))
+
+
+def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str]) -> None:
+    """Every declared term has a weight and every weight names a declared term."""
+    unknown = sorted(set(weights) - set(declared))
+    if unknown:
+        raise SurgsplatError(f"losses.{unknown[0]}: no component of this method computes a loss "
+                             f"term {unknown[0]!r}; terms: {', '.join(sorted(declared))}")
+    missing = sorted(set(declared) - set(weights))
+    if missing:
+        raise SurgsplatError(f"losses.{missing[0]}: component {declared[missing[0]]!r} computes "
+                             f"this term but the method gives it no weight")
+
+
 class Trainer:
-    """Trains a DeformableGaussians model on a scene into a run folder."""
+    """Trains a method (a MethodConfig) on a scene into a run folder."""
 
     def __init__(self, config: MethodConfig, scene: Scene, run_dir: Path):
-        num_frames = len(scene.frames)
-        config.deformation = config.deformation.for_frames(num_frames)
-        config.exposure = config.exposure.for_frames(num_frames)
-        budget = config.gaussians.cap(scene.camera.width, scene.camera.height)
-        # start with at most half the budget, leaving room for densification
-        config.init.max_points = min(config.init.max_points, budget // 2)
-        self.config = config
+        info = scene_info(scene)
+        self.config = config.resolved(info)
         self.scene = scene
         self.run_dir = Path(run_dir)
         self.iteration = 0
         self.elapsed = 0.0
         self.peak_rss_mb = 0.0  # over this process and the runs it resumed
-        torch.manual_seed(config.train.seed)
-        points = initial_points(scene, config.init)
-        field = config.deformation.build()
-        field.set_bounds(points.means.min(dim=0).values, points.means.max(dim=0).values)
-        gaussians = GaussianModel.from_points(
-            points.means, points.colors, config.gaussians,
-            field.per_gaussian_attributes(points.means.shape[0]))
-        self.model = DeformableGaussians(gaussians, field, ExposureCurve(config.exposure))
+        torch.manual_seed(self.config.train.seed)
+        points = initial_points(scene, self.config.init)
         centre = points.means.mean(dim=0)
         self.scene_extent = float((points.means - centre).norm(dim=1).max())
-        self.optimizer = self._build_optimizer()
-        self.strategy = DensifyStrategy(config.densify, self.scene_extent, budget)
-        self.frame_generator = torch.Generator().manual_seed(config.train.seed)
+        components = build_components(self.config)
+        context = SetupContext(scene=info, points=points.means, scene_extent=self.scene_extent)
+        attributes: dict[str, Tensor] = {}
+        for name, component in components.items():
+            component.setup(context)
+            for key, value in component.initial_attributes(context).items():
+                if key in attributes:
+                    raise SurgsplatError(f"component {name!r} declares the per-Gaussian "
+                                         f"attribute {key!r}, which another component owns")
+                attributes[key] = value
+        gaussians = GaussianModel.from_points(points.means, points.colors, self.config.gaussians,
+                                              attributes)
+        self.model = SplatModel(gaussians, components)
+        check_loss_weights(self.config.losses, self.model.loss_terms())
+        self.optimizer, self.schedules = self._build_optimizer()
+        budget = self.config.gaussians.cap(info.width, info.height)
+        self.strategy = DensifyStrategy(self.config.densify, self.scene_extent, budget)
+        self.frame_generator = torch.Generator().manual_seed(self.config.train.seed)
         self._frame_queue: list[int] = []
-        self.background = torch.tensor(config.train.background, dtype=torch.float32)
+        self.background = torch.tensor(self.config.train.background, dtype=torch.float32)
 
     # ---- optimiser ----
-    def _gaussian_lrs(self) -> dict[str, float]:
-        lr = self.config.train.lr
-        lrs = {"means": lr.means * self.scene_extent, "log_scales": lr.log_scales,
-               "quats": lr.quats, "opacity_logits": lr.opacity_logits, "sh_dc": lr.sh_dc,
-               "sh_rest": lr.sh_rest}
-        lrs.update(self.model.field.attribute_lrs())
-        return lrs
+    def _param_groups(self) -> list[ParamGroup]:
+        """The canonical Gaussians' groups, one per per-Gaussian tensor (components' attributes
+        included), then every component's own groups."""
+        lr, extent = self.config.train.lr, self.scene_extent
+        rates = {"means": (lr.means * extent, lr.means_final * extent),
+                 "log_scales": (lr.log_scales, None), "quats": (lr.quats, None),
+                 "opacity_logits": (lr.opacity_logits, None), "sh_dc": (lr.sh_dc, None),
+                 "sh_rest": (lr.sh_rest, None)}
+        rates.update({name: (rate, None) for name, rate in self.model.attribute_lrs().items()})
+        groups = []
+        for name, param in self.model.gaussians.params.items():
+            if name not in rates:
+                raise SurgsplatError(f"per-Gaussian attribute {name!r} has no learning rate "
+                                     "(its component's attribute_lrs() must name it)")
+            groups.append(ParamGroup(name, [param], *rates[name]))
+        return groups + self.model.component_param_groups()
 
-    def _build_optimizer(self) -> torch.optim.Optimizer:
-        lrs = self._gaussian_lrs()
-        params = self.model.gaussians.params
-        groups = [{"name": name, "params": [params[name]], "lr": lrs[name]} for name in params]
-        groups += self.model.field.param_groups()
-        groups.append({"name": "exposure", "params": [self.model.exposure.log_gains],
-                       "lr": self.config.exposure.lr})
-        return torch.optim.Adam(groups, eps=1e-15, fused=True)
+    def _build_optimizer(self) -> tuple[torch.optim.Optimizer, dict[str, ParamGroup]]:
+        groups = self._param_groups()
+        names = [group.name for group in groups]
+        if len(set(names)) != len(names):
+            raise SurgsplatError(f"optimiser groups share names: {sorted(names)}")
+        optimizer = torch.optim.Adam(
+            [{"name": g.name, "params": g.params, "lr": g.lr} for g in groups],
+            eps=1e-15, fused=True)
+        return optimizer, {g.name: g for g in groups if g.lr_final is not None}
 
     def _update_learning_rates(self) -> None:
-        lr = self.config.train.lr
         progress = min(self.iteration / max(self.config.train.iterations, 1), 1.0)
-        means_lr = lr.means * (lr.means_final / lr.means) ** progress * self.scene_extent
         for group in self.optimizer.param_groups:
-            if group["name"] == "means":
-                group["lr"] = means_lr
+            schedule = self.schedules.get(group["name"])
+            if schedule is not None:
+                group["lr"] = schedule.lr * (schedule.lr_final / schedule.lr) ** progress
 
     # ---- one step ----
     def _next_frame(self) -> Frame:
@@ -126,34 +163,29 @@ class Trainer:
         self.iteration += 1
         self._update_learning_rates()
         frame = self._next_frame()
+        camera = self.scene.camera
+        when = FrameTime(frame.index, frame.time)
         absgrad = torch.zeros(self.model.gaussians.num_gaussians)
-        out = self.model.render(self.scene.camera, frame.time, self.background, absgrad=absgrad)
-        loss, mse = self._loss(out, frame)
+        output, state = self.model.render(camera, when, self.background, absgrad=absgrad)
+        context = RenderContext(frame=frame, when=when, camera=camera, output=output,
+                                state=state, gaussians=self.model.gaussians,
+                                iteration=self.iteration)
+        weights = {name: w.weight for name, w in self.config.losses.items()
+                   if w.weight != 0 and self.iteration >= w.start_iter}
+        terms = self.model.losses(context, frozenset(weights))
+        loss = sum(weights[name] * value for name, value in terms.items())
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        camera = self.scene.camera
         screen_grad = absgrad * (0.5 * max(camera.width, camera.height))
         self.optimizer.step()
         self.strategy.step_post_backward(self.iteration, self.model.gaussians, self.optimizer,
-                                         screen_grad, out.projection.radii.detach())
+                                         screen_grad, output.projection.radii.detach())
         self.elapsed += time.perf_counter() - started
-        return StepStats(self.iteration, loss.item(), psnr_from_mse(mse),
-                         self.model.gaussians.num_gaussians, self.elapsed)
-
-    def _loss(self, out, frame: Frame) -> tuple[Tensor, float]:
-        config = self.config.train
-        tissue = frame.tissue
-        loss = photometric_loss(out.rgb, frame.image, tissue, lambda_dssim=config.lambda_dssim)
-        if frame.depth is not None and config.lambda_depth > 0:
-            depth_fn = depth_l1 if config.depth_loss == "l1" else inverse_depth_l1
-            loss = loss + config.lambda_depth * depth_fn(out.depth, frame.depth, tissue)
-        for name, value in self.model.field.regularisation().items():
-            weight = config.regularisation.get(name, 0.0)
-            if weight:
-                loss = loss + weight * value
         with torch.no_grad():
-            mse = float(((out.rgb - frame.image)[tissue] ** 2).mean())
-        return loss, mse
+            mse = float(((output.rgb - frame.image)[frame.tissue] ** 2).mean())
+        return StepStats(self.iteration, float(loss.detach()), psnr_from_mse(mse),
+                         self.model.gaussians.num_gaussians, self.elapsed,
+                         {name: float(value.detach()) for name, value in terms.items()})
 
     # ---- the run ----
     def fit(self, on_step: Callable[[StepStats], None] | None = None) -> None:
@@ -165,8 +197,8 @@ class Trainer:
                 stats = self.step()
                 if on_step:
                     on_step(stats)
-                if stats.iteration % 10 == 0 or stats.iteration == self.config.train.iterations:
-                    log.write(json.dumps(stats.__dict__) + "\n")
+                if stats.iteration % LOG_EVERY == 0 or stats.iteration == self.config.train.iterations:
+                    log.write(json.dumps(asdict(stats)) + "\n")
                 if stats.iteration % self.config.train.checkpoint_every == 0:
                     self.save()
         except KeyboardInterrupt:
@@ -185,13 +217,11 @@ class Trainer:
     def state_dict(self) -> dict:
         self.peak_rss_mb = max(self.peak_rss_mb, current_peak_rss_mb())
         return {
+            **model_state(self.config, self.model),
+            "num_frames": len(self.scene.frames),
             "peak_rss_mb": self.peak_rss_mb,
             "iteration": self.iteration,
             "elapsed_seconds": self.elapsed,
-            "gaussians": {k: v.detach() for k, v in self.model.gaussians.params.items()},
-            "sh_degree": self.model.gaussians.sh_degree,
-            "field": self.model.field.state_dict(),
-            "exposure": self.model.exposure.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "strategy": self.strategy.state_dict(),
             "scene_extent": self.scene_extent,
@@ -206,14 +236,11 @@ class Trainer:
         return path
 
     def load(self, path: Path) -> None:
-        """Restore a checkpoint of this run (model, field, optimiser, strategy, sampling)."""
+        """Restore a checkpoint of this run (model, components, optimiser, strategy, sampling)."""
         state = load_checkpoint(path)
-        gaussians = GaussianModel(state["gaussians"], state["sh_degree"])
-        self.model = DeformableGaussians(gaussians, self.model.field, self.model.exposure)
-        self.model.field.load_state_dict(state["field"])
-        self.model.exposure.load_state_dict(state["exposure"])
+        self.model = model_from_state(self.config, state, path)
         self.scene_extent = float(state["scene_extent"])
-        self.optimizer = self._build_optimizer()
+        self.optimizer, self.schedules = self._build_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
         self.strategy.load_state_dict(state["strategy"])
         self.frame_generator.set_state(state["frame_generator"])

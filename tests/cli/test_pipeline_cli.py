@@ -30,7 +30,7 @@ def test_train_eval_render(small_phantom, tmp_path, cli):
 
     rendered = cli("render", str(run), "--fps", "5")
     assert rendered.returncode == 0, rendered.stderr
-    for name in ("rgb.mp4", "depth.mp4", "side_by_side.mp4"):
+    for name in ("rgb.mp4", "depth.mp4", "normal.mp4", "side_by_side.mp4"):
         assert (run / "videos" / name).stat().st_size > 1000
 
 
@@ -40,3 +40,42 @@ def test_user_mistakes_are_one_line(small_phantom, tmp_path, cli):
     assert "unknown method" in one_error_line(
         cli("train", "--method", "nope", "--data", str(small_phantom), "--out", str(tmp_path / "y")))
     assert "config.json" in one_error_line(cli("eval", str(tmp_path)))
+
+
+def test_methods_lists_every_preset(cli):
+    listed = cli("methods")
+    assert listed.returncode == 0, listed.stderr
+    for name in ("deform3dgs", "endogaussian", "endoplanar"):
+        assert name in listed.stdout
+    shown = cli("methods", "endoplanar")
+    assert shown.returncode == 0 and json.loads(shown.stdout)["losses"]["normal"]["weight"] > 0
+
+
+def test_set_and_config_reproduce_a_run(small_phantom, tmp_path, cli):
+    first = tmp_path / "first"
+    trained = cli("train", "--method", "endoplanar", "--data", str(small_phantom), "--out",
+                  str(first), "--set", "train.iterations=5", "--set", "losses.normal.weight=0.5",
+                  "--set", "losses.normal.start_iter=0")
+    assert trained.returncode == 0, trained.stderr
+    saved = json.loads((first / "config.json").read_text())
+    assert saved["losses"]["normal"]["weight"] == 0.5 and saved["train"]["iterations"] == 5
+    again = tmp_path / "again"
+    reproduced = cli("train", "--config", str(first / "config.json"), "--data", str(small_phantom),
+                     "--out", str(again))
+    assert reproduced.returncode == 0, reproduced.stderr
+    assert json.loads((again / "config.json").read_text()) == saved
+    log = [json.loads(line) for line in (first / "train_log.jsonl").read_text().splitlines()]
+    log_again = [json.loads(line) for line in (again / "train_log.jsonl").read_text().splitlines()]
+    assert [e["terms"] for e in log] == [e["terms"] for e in log_again]
+
+
+def test_bad_settings_are_one_line(small_phantom, tmp_path, cli):
+    out = str(tmp_path / "z")
+    assert "--set.train.iterations: expected an integer" in one_error_line(
+        cli("train", "--data", str(small_phantom), "--out", out, "--set", "train.iterations=x"))
+    assert "losses.nope: no component of this method computes" in one_error_line(
+        cli("train", "--data", str(small_phantom), "--out", out, "--set", "losses.nope.weight=1"))
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    assert "bad.json: cannot be read as a config file" in one_error_line(
+        cli("train", "--data", str(small_phantom), "--out", out, "--config", str(bad)))

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
-from surgsplat.eval.ssim import ssim
+from surgsplat.image.ssim import ssim
 
 
 def scene(seed=0):

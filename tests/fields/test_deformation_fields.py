@@ -177,9 +177,10 @@ def test_hexplane_lookup_at_grid_nodes_multiplies_the_six_cells():
 def test_hexplane_param_groups_cover_all_parameters_once():
     field = make_field("hexplane")
     groups = field.param_groups()
-    grouped = [p for group in groups for p in group["params"]]
+    grouped = [p for group in groups for p in group.params]
     assert len(grouped) == len(set(map(id, grouped))) == len(list(field.parameters()))
-    assert {g["name"] for g in groups} == {"hexplane_grid", "hexplane_mlp"}
+    assert {g.name for g in groups} == {"hexplane_grid", "hexplane_mlp"}
+    assert set(field.loss_names()) == set(field.regularisation())
     assert field.per_gaussian_attributes(5) == {} and field.attribute_lrs() == {}
 
 

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from surgsplat.eval.ssim import ssim
+from surgsplat.image.ssim import ssim
 from surgsplat.losses.photometric import d_ssim, masked_l1, photometric_loss
 
 

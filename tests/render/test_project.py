@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from surgsplat.render.native import native_module
-from surgsplat.render.project import camera_ray_directions, project, project_reference
+from surgsplat.image.pinhole import pixel_rays
+from surgsplat.render.project import project, project_reference
 
 K = torch.tensor([[100.0, 0, 32.0], [0, 100.0, 24.0], [0, 0, 1]], dtype=torch.float64)
 
@@ -57,7 +58,7 @@ def test_project_gradcheck():
 
 
 def test_ray_directions_through_pixel_centres():
-    rays = camera_ray_directions(K, 64, 48)
+    rays = pixel_rays(K, 64, 48)
     assert rays.shape == (48, 64, 3)
     torch.testing.assert_close(rays[24, 32], torch.tensor([0.005, 0.005, 1.0]))
 

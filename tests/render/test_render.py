@@ -5,7 +5,8 @@ import math
 import pytest
 import torch
 
-from surgsplat.render.project import camera_ray_directions
+from surgsplat.image.pinhole import pixel_rays
+from surgsplat.render.planar import planar_normals_and_distances, unbiased_plane_depth
 from surgsplat.render.render import render
 from surgsplat.render.sh import SH_C0, eval_sh
 
@@ -30,15 +31,18 @@ def tilted_plane(angle: float, distance: float = 3.0, spacing: float = 0.05):
 @pytest.mark.parametrize("backend", ["native", "reference"])
 def test_plane_depth_is_the_ray_plane_intersection(backend):
     means, scales, quats, normal, offset = tilted_plane(0.5)
+    normals, distances = planar_normals_and_distances(means, scales, quats, torch.eye(4))
     out = render(means, scales, quats, torch.full((means.shape[0],), 0.9),
-                 torch.rand(means.shape[0], 3), K, W, H, planar_depth=True, backend=backend)
-    rays = camera_ray_directions(K, W, H)
+                 torch.rand(means.shape[0], 3), K, W, H, backend=backend,
+                 extras={"normal": normals, "plane_distance": distances})
+    plane_depth = unbiased_plane_depth(out.extras["normal"], out.extras["plane_distance"][..., 0], K)
+    rays = pixel_rays(K, W, H)
     truth = offset / (rays @ normal)
     covered = out.alpha > 0.99
     assert covered.float().mean() > 0.9
-    relative = ((out.plane_depth - truth).abs() / truth)[covered]
+    relative = ((plane_depth - truth).abs() / truth)[covered]
     assert relative.max() < 1e-3
-    unit = torch.nn.functional.normalize(out.normal[covered], dim=-1)
+    unit = torch.nn.functional.normalize(out.extras["normal"][covered], dim=-1)
     assert (unit @ normal).min() > 0.999  # faces away from the camera, as EndoPlanar defines
 
 

@@ -5,7 +5,8 @@ import math
 import torch
 
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
-from surgsplat.train.strategy import DensifyConfig, DensifyStrategy
+from surgsplat.methods.settings import DensifyConfig
+from surgsplat.train.strategy import DensifyStrategy
 
 
 def setup(log_scales: list[float], opacities: list[float]):

@@ -12,7 +12,8 @@ from surgsplat.data.scene import load_scene
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.losses.photometric import photometric_loss
 from surgsplat.methods.registry import method_config
-from surgsplat.model.dynamic import render_time
+from surgsplat.model.component import FrameTime
+from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, LOG_FILE, Trainer
 
@@ -28,11 +29,11 @@ def small_config(name: str, iterations: int):
 
 def frame_loss(trainer: Trainer, index: int = 0) -> float:
     frame = trainer.scene.frames[index]
-    out = render_time(trainer.model, trainer.scene.camera, frame.time)
+    out = render_frame(trainer.model, trainer.scene.camera, FrameTime(frame.index, frame.time))
     return float(photometric_loss(out.rgb, frame.image, frame.tissue, lambda_dssim=0.2))
 
 
-@pytest.mark.parametrize("method", ["deform3dgs", "endogaussian"])
+@pytest.mark.parametrize("method", ["deform3dgs", "endogaussian", "endoplanar"])
 def test_loss_falls(small_phantom, tmp_path, method):
     trainer = Trainer(small_config(method, 60), load_scene(small_phantom), tmp_path / "run")
     before = frame_loss(trainer)
@@ -43,6 +44,8 @@ def test_loss_falls(small_phantom, tmp_path, method):
     assert saved["name"] == method and saved["train"]["iterations"] == 60
     logged = [json.loads(line) for line in (tmp_path / "run" / LOG_FILE).read_text().splitlines()]
     assert logged[-1]["iteration"] == 60
+    assert set(logged[-1]["terms"]) == {name for name, weight in saved["losses"].items()
+                                        if weight["weight"] and weight["start_iter"] <= 60}
 
 
 def test_resume_continues_exactly(small_phantom, tmp_path):

@@ -7,7 +7,7 @@ csrc/blur (float32) and a PyTorch depthwise convolution (any dtype, device-agnos
 `gaussian_blur` picks the native kernel for float32 CPU planes when it is built. The kernel is
 symmetric and the padding is zero, so the blur is self-adjoint: its backward is the same blur
 of the upstream gradient. (SSIM itself runs on fused native kernels built on the same blur, see
-`surgsplat.eval.ssim`.)
+`surgsplat.image.ssim`.)
 """
 
 from __future__ import annotations

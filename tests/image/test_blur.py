@@ -6,7 +6,7 @@ import pytest
 import torch
 from scipy.ndimage import gaussian_filter
 
-from surgsplat.eval.blur import (WINDOW_SIZE, gaussian_blur, gaussian_blur_reference,
+from surgsplat.image.blur import (WINDOW_SIZE, gaussian_blur, gaussian_blur_reference,
                                  gaussian_taps, native_blur_module)
 
 needs_native = pytest.mark.skipif(native_blur_module() is None, reason="native module not built")

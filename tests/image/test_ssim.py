@@ -7,8 +7,8 @@ import pytest
 import torch
 from scipy.ndimage import gaussian_filter
 
-from surgsplat.eval.blur import native_blur_module
-from surgsplat.eval.ssim import ssim, ssim_map, ssim_map_reference
+from surgsplat.image.blur import native_blur_module
+from surgsplat.image.ssim import ssim, ssim_map, ssim_map_reference
 
 needs_native = pytest.mark.skipif(native_blur_module() is None, reason="native module not built")
 

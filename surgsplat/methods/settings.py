@@ -1,0 +1,80 @@
+"""Settings of a method besides its components: optimisation, densification, loss weights."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class LearningRates:
+    """Adam learning rates of the canonical Gaussians' own parameters."""
+
+    means: float = 1.6e-4
+    """Initial rate of the means, times the scene extent (3DGS convention)."""
+    means_final: float = 1.6e-6
+    """Final rate of the means (exponential decay over the run), times the scene extent."""
+    log_scales: float = 5e-3
+    """Rate of the log-scales."""
+    quats: float = 1e-3
+    """Rate of the rotation quaternions."""
+    opacity_logits: float = 5e-2
+    """Rate of the opacity logits."""
+    sh_dc: float = 2.5e-3
+    """Rate of the degree-0 colour."""
+    sh_rest: float = 1.25e-4
+    """Rate of the higher-degree colour coefficients."""
+
+
+@dataclass
+class TrainConfig:
+    """How a run optimises: schedule, background, checkpoints, seed."""
+
+    iterations: int = 3000
+    """Number of optimisation steps (one training frame each)."""
+    lr: LearningRates = field(default_factory=LearningRates)
+    """Learning rates of the canonical Gaussians (components set their own)."""
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Colour behind all Gaussians (endoscopic scenes are dark)."""
+    checkpoint_every: int = 500
+    """Write RUN/checkpoints/latest.pt every this many iterations (and at the end, and on Ctrl-C)."""
+    seed: int = 0
+    """Seed of frame sampling and of densification."""
+
+
+@dataclass
+class LossWeight:
+    """The weight of one named loss term in the training objective."""
+
+    weight: float = 1.0
+    """Multiplier of the term (0 = the term is not computed)."""
+    start_iter: int = 0
+    """The term joins the objective from this iteration on."""
+
+
+@dataclass
+class DensifyConfig:
+    """When and how Gaussians are added and removed."""
+
+    start_iter: int = 300
+    """First iteration at which densification may run."""
+    stop_iter: int = 2000
+    """No densification or opacity reset after this iteration (pruning stops too)."""
+    every: int = 100
+    """Densify and prune every this many iterations."""
+    grad_threshold: float = 0.002
+    """Mean absolute screen-space gradient (NDC-scaled, per visible step) above which a Gaussian
+    is densified."""
+    percent_dense: float = 0.01
+    """Gaussians larger than this share of the scene extent are split, smaller ones cloned."""
+    split_factor: float = 1.6
+    """A split Gaussian's two children have the parent's scale divided by this."""
+    min_opacity: float = 0.005
+    """Prune Gaussians less opaque than this."""
+    max_world_scale: float = 0.1
+    """Prune Gaussians larger than this share of the scene extent."""
+    max_screen_radius: float = 0.0
+    """Prune Gaussians whose projected radius exceeded this many pixels (0 = no limit)."""
+    opacity_reset_every: int = 3000
+    """Reset opacities to reset_opacity every this many iterations (0 = never)."""
+    reset_opacity: float = 0.01
+    """Opacity ceiling applied by a reset."""

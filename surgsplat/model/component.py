@@ -1,0 +1,161 @@
+"""The component contract: every piece of a method (a deformation field, an exposure curve, a loss,
+planar Gaussians, ...) is a `Component`, configured by a typed `ComponentConfig`.
+
+The Trainer, checkpoints, run loading and the densification strategy handle every component the
+same way and never name one. A component declares:
+
+- its network parameters as optimiser groups with a learning-rate schedule (`param_groups`);
+- its per-Gaussian attributes (`initial_attributes`, `attribute_lrs`): they live with the Gaussians
+  in `GaussianModel.params`, so densification, pruning and checkpoints carry them generically;
+- its state for checkpoints: `nn.Module.state_dict()` (parameters and buffers);
+- how it changes the Gaussians at a frame (`transform`: deformation, opacity, colour);
+- the per-Gaussian channels it adds to a render (`render_channels`) and what it derives from the
+  rendered maps (`finish_render`: e.g. an unbiased depth, an exposure gain);
+- its named loss terms (`loss_names`, `losses`), computed from a `RenderContext`; their weights
+  come from the method config (`MethodConfig.losses`), never from the component.
+
+Every hook has a neutral default, so a component implements only what it contributes.
+A config subclass registers itself under its `kind` (the key saved in config.json), so a run's
+config can be rebuilt from the file alone, including components defined outside surgsplat.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
+
+from torch import Tensor, nn
+
+from surgsplat.errors import SurgsplatError
+
+if TYPE_CHECKING:
+    from surgsplat.data.scene import Camera, Frame
+    from surgsplat.model.gaussians import GaussianModel
+    from surgsplat.model.state import GaussianState
+    from surgsplat.render.render import RenderOutput
+
+
+@dataclass(frozen=True)
+class FrameTime:
+    """The moment a component is asked about: a frame of the clip and its time."""
+
+    index: int  # frame index in the clip (a held-out frame's own index at test time)
+    time: float  # index / number of frames, in [0, 1)
+
+
+@dataclass(frozen=True)
+class SceneInfo:
+    """What a component may know of the scene when its config is resolved and it is set up."""
+
+    num_frames: int
+    width: int
+    height: int
+    train_indices: tuple[int, ...]  # indices of the training frames
+
+
+@dataclass
+class SetupContext:
+    """What a freshly built component sees once, before training starts."""
+
+    scene: SceneInfo
+    points: Tensor  # [M, 3] initial Gaussian means (world frame, scene units)
+    scene_extent: float  # largest distance of an initial point from their centroid
+
+
+@dataclass
+class ParamGroup:
+    """An optimiser group of a component's parameters and its learning-rate schedule."""
+
+    name: str  # unique across the method (used in logs and to find the group again)
+    params: list[nn.Parameter]
+    lr: float  # learning rate at iteration 0
+    lr_final: float | None = None  # when set, the rate decays exponentially to this at the end
+
+
+@dataclass
+class RenderContext:
+    """Everything a loss term may look at: the frame, its render, and the model at that time."""
+
+    frame: Frame
+    when: FrameTime
+    camera: Camera
+    output: RenderOutput
+    state: GaussianState  # the Gaussians as rendered (after every component's transform)
+    gaussians: GaussianModel  # the canonical Gaussians and their per-Gaussian attributes
+    iteration: int
+
+
+class ComponentConfig:
+    """Base of a component's typed dataclass config. A subclass names its `kind`:
+
+        @dataclass
+        class MyConfig(ComponentConfig, kind="my_component"):
+            ...
+            def build(self) -> Component: ...
+    """
+
+    kind: ClassVar[str] = ""
+    registry: ClassVar[dict[str, type[ComponentConfig]]] = {}
+
+    def __init_subclass__(cls, kind: str = "", **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        if kind:
+            cls.kind = kind
+            ComponentConfig.registry[kind] = cls
+
+    @classmethod
+    def of_kind(cls, kind: str, where: str) -> type[ComponentConfig]:
+        """The config class registered as `kind`; SurgsplatError naming `where` otherwise."""
+        if kind not in cls.registry:
+            raise SurgsplatError(f"{where}: unknown component kind {kind!r}; known: "
+                                 f"{', '.join(sorted(cls.registry))}")
+        return cls.registry[kind]
+
+    def resolve(self, scene: SceneInfo) -> ComponentConfig:
+        """This config adapted to a scene (e.g. capacity capped by the clip length); the
+        resolved copy is what a run saves. Resolving twice changes nothing."""
+        return self
+
+    def build(self) -> Component:
+        raise NotImplementedError(f"{type(self).__name__} must define build()")
+
+
+class Component(nn.Module):
+    """One piece of a method; see the module docstring. Hooks default to contributing nothing."""
+
+    def setup(self, context: SetupContext) -> None:
+        """Called once on a freshly built component before training (not when a run is loaded:
+        whatever it sets must live in parameters or buffers, so the state_dict restores it)."""
+
+    def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
+        """Learnable per-Gaussian tensors, name -> [M, ...] for the M initial points."""
+        return {}
+
+    def attribute_lrs(self) -> dict[str, float]:
+        """Adam learning rate of each per-Gaussian attribute this component owns, by name."""
+        return {}
+
+    def param_groups(self) -> list[ParamGroup]:
+        """Optimiser groups of the component's own (non per-Gaussian) parameters."""
+        return []
+
+    def transform(self, state: GaussianState, gaussians: GaussianModel,
+                  when: FrameTime) -> GaussianState:
+        """The Gaussians at `when` after this component (deform, change opacity or colour)."""
+        return state
+
+    def render_channels(self, state: GaussianState, gaussians: GaussianModel, camera: Camera,
+                        when: FrameTime) -> dict[str, Tensor]:
+        """Per-Gaussian values [N] or [N, k] to alpha-blend into RenderOutput.extras."""
+        return {}
+
+    def finish_render(self, output: RenderOutput, camera: Camera, when: FrameTime) -> None:
+        """Derive maps from the rendered channels into output (e.g. output.extras[...])."""
+
+    def loss_names(self) -> tuple[str, ...]:
+        """Names of the loss terms this component can compute."""
+        return ()
+
+    def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
+        """Unweighted scalar loss terms, for the names in `active` (those with a weight now)."""
+        return {}
