@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -23,9 +22,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from machine import machine_info, results_path  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_render import results_path  # noqa: E402
+
+from surgsplat.render.native import system_info  # noqa: E402
 
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
 COLUMNS = ("psnr_tissue", "ssim", "depth_rmse_mm", "normal_error_deg_median",
@@ -116,14 +116,13 @@ def main() -> None:
                         help="result file (default benchmarks/results/bench_methods-<cpu>.json)")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     rows = []
     for case in CASES:
         if case.name in args.cases:
             rows.append(run_case(case, args.work, args.iters))
             print(json.dumps(rows[-1]) if args.json else f"done: {rows[-1]['case']}", flush=True)
     add_ratios(rows)
-    info = machine_info()
+    info = system_info()
     report = {"benchmark": "bench_methods", "cpu": info["cpu"], "system": info,
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "command": " ".join(["python", "benchmarks/bench_methods.py", *sys.argv[1:]]),

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Annotated
 
@@ -11,6 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from surgsplat.atomic import write_text_atomic
 from surgsplat.cli.progress import progress_bar
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.train.run import load_trained_run
@@ -33,12 +33,6 @@ def print_metrics(metrics: dict, console: Console) -> None:
     console.print(table)
 
 
-def write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
-
-
 def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
                         data: Path | None = None) -> dict:
     """Evaluate the run, write RUN/metrics.json, print the table; returns the metrics."""
@@ -47,7 +41,7 @@ def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
         task = bar.add_task("evaluate", total=len(run.scene.test_frames))
         metrics = evaluate_run(run, options or EvalOptions(),
                                lambda done, _: bar.update(task, completed=done))
-    write_json_atomic(Path(run_dir) / METRICS_FILE, metrics)
+    write_text_atomic(Path(run_dir) / METRICS_FILE, json.dumps(metrics, indent=2) + "\n")
     console = Console()
     print_metrics(metrics, console)
     console.print(f"written: {Path(run_dir) / METRICS_FILE}")

@@ -6,11 +6,11 @@ read with `torch.load(weights_only=True)`, which refuses anything that would run
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 
+from surgsplat.atomic import write_atomic
 from surgsplat.errors import DataError
 from surgsplat.methods.config import MethodConfig
 from surgsplat.model.component import Component
@@ -19,15 +19,9 @@ from surgsplat.model.gaussians import GaussianModel
 
 
 def save_atomic(state: dict, path: Path) -> None:
-    """Write `state` to `path` via a temporary file and an atomic rename: a crash or Ctrl-C
-    during the write leaves the previous checkpoint intact."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as handle:
-        torch.save(state, handle)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
+    """Write `state` to `path` atomically: a crash or Ctrl-C during the write leaves the
+    previous checkpoint intact."""
+    write_atomic(path, lambda handle: torch.save(state, handle))
 
 
 def load_checkpoint(path: Path) -> dict:

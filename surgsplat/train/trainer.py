@@ -19,6 +19,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from surgsplat.atomic import write_text_atomic
 from surgsplat.data.scene import Frame, Scene
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.config import MethodConfig, to_dict
@@ -210,8 +211,8 @@ class Trainer:
 
     def write_run_files(self) -> None:
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        (self.run_dir / CONFIG_FILE).write_text(json.dumps(to_dict(self.config), indent=2) + "\n")
-        (self.run_dir / SCENE_FILE).write_text(str(self.scene.root.resolve()) + "\n")
+        write_text_atomic(self.run_dir / CONFIG_FILE, json.dumps(to_dict(self.config), indent=2) + "\n")
+        write_text_atomic(self.run_dir / SCENE_FILE, str(self.scene.root.resolve()) + "\n")
 
     # ---- checkpoints ----
     def state_dict(self) -> dict:
