@@ -80,7 +80,8 @@ class PlanarGaussians(Component):
         if frame.depth is not None:
             counted &= frame.depth > 0
             if self.config.edge_aware:
-                relative = depth_gradient_magnitude(frame.depth) / frame.depth.clamp_min(1e-6)
+                measured = torch.where(frame.depth > 0, frame.depth, torch.ones_like(frame.depth))
+                relative = depth_gradient_magnitude(frame.depth) / measured
                 weight = (1.0 - relative.clamp(0.0, 1.0)) ** 2
         error = (from_depth - rendered).abs().sum(-1) * weight
         return (error * counted).sum() / counted.sum().clamp_min(1)

@@ -215,3 +215,22 @@ def test_backproject_into_the_world_with_the_frames_camera():
         [[20.5, 10.5], [45.5, 30.5]], dtype=torch.float64), atol=1e-9, rtol=0)
     torch.testing.assert_close(back[:, 2], torch.tensor([40.0, 70.0], dtype=torch.float64),
                                atol=1e-12, rtol=0)
+
+
+def test_normal_angles_are_orientation_free_and_masked():
+    import math
+
+    import torch
+
+    from surgsplat.eval.normals import normal_angle_deg
+
+    gt = torch.zeros(4, 5, 3)
+    gt[..., 2] = -1.0  # towards the camera
+    angle = math.radians(10.0)
+    pred = torch.zeros(4, 5, 3)
+    pred[..., 0], pred[..., 2] = math.sin(angle), math.cos(angle)  # away from it, tilted 10 deg
+    mask = torch.ones(4, 5, dtype=torch.bool)
+    mask[0] = False
+    angles = normal_angle_deg(pred, gt, mask)
+    assert angles.shape == (15,)
+    assert torch.allclose(angles, torch.full((15,), 10.0, dtype=torch.float64), atol=1e-4)
