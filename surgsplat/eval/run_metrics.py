@@ -22,10 +22,10 @@ from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.scene import Camera
 from surgsplat.eval.geometry_metrics import depth_rmse, geometry_metrics
-from surgsplat.image.pinhole import backproject
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
 from surgsplat.eval.normals import normal_angle_deg, surface_normals
+from surgsplat.image.pinhole import backproject
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
