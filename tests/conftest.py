@@ -1,5 +1,7 @@
 """Shared test fixtures."""
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -37,3 +39,15 @@ def native_isa(request) -> str:
     native.use_isa(request.param)
     yield request.param
     native.use_isa(None)
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture
+def cli():
+    """cli(*args) runs `surgsplat *args` as a user does (a subprocess) and returns the
+    CompletedProcess: its exit status and its output."""
+    return run_cli

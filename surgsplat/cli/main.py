@@ -37,8 +37,8 @@ def _root(
 
 
 def _register() -> None:
-    from surgsplat.cli import (demo, eval_cmd, import_cmd, info, methods, phantom, render_videos,
-                               train)
+    from surgsplat.cli import (demo, eval_cmd, export_cmd, import_cmd, info, methods, phantom,
+                               render_videos, train)
 
     app.command("demo")(demo.demo_command)
     app.command("phantom")(phantom.phantom_command)
@@ -48,6 +48,7 @@ def _register() -> None:
     app.command("train")(train.train_command)
     app.command("eval")(eval_cmd.eval_command)
     app.command("render")(render_videos.render_command)
+    app.command("export")(export_cmd.export_command)
 
 
 def main() -> None:

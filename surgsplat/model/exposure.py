@@ -3,7 +3,9 @@
 Endoscopes change exposure over time (auto-exposure, light-source power); tissue colour should
 not. The gain is exp(g(t)) per colour channel, g piecewise linear in t over `knots` evenly
 spaced knots, so test frames between training frames get an interpolated exposure.
-As a component it multiplies the rendered colour by the gain of the frame's time.
+As a component it scales the Gaussians' colour at each frame (`transform`), so the exposure is
+part of the Gaussians of that moment (exports and viewers see it) and never touches the
+background.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ import torch
 from torch import Tensor, nn
 
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, ParamGroup, SceneInfo
+from surgsplat.model.state import GaussianState
+from surgsplat.render.sh import SH_C0
 
 
 @dataclass
@@ -45,8 +49,15 @@ class ExposureCurve(Component):
     def param_groups(self) -> list[ParamGroup]:
         return [ParamGroup("exposure", [self.log_gains], self.config.lr)]
 
-    def finish_render(self, output, camera, when: FrameTime) -> None:
-        output.rgb = output.rgb * self.gain(when.time)
+    def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
+        """Colours times the gain g of `when`, in SH space: every coefficient times g, and the
+        degree-0 term shifted by (g - 1) 0.5 / Y_0 so that the +0.5 offset of the SH colour
+        scales too (the colour's clamp at 0 commutes with a positive gain)."""
+        gain = self.gain(when.time)  # [3]
+        sh = state.sh * gain
+        offset = torch.zeros_like(sh[:1])
+        offset[0, 0] = (gain - 1.0) * (0.5 / SH_C0)
+        return state.replace(sh=sh + offset)
 
     def gain(self, t: float) -> Tensor:
         """[3] multiplicative gain at time t (ones without knots)."""

@@ -1,36 +1,25 @@
-"""The exposure curve: identity at start, linear interpolation between knots, learnable."""
-
-import math
+"""The exposure component scales the rendered colour of the Gaussians by its gain, exactly."""
 
 import torch
 
-from surgsplat.model.exposure import ExposureConfig, ExposureCurve
+from surgsplat.model.component import FrameTime
+from surgsplat.model.exposure import ExposureConfig
+from surgsplat.model.state import GaussianState
+from surgsplat.render.sh import eval_sh
 
 
-def test_starts_as_identity_and_interpolates():
-    curve = ExposureCurve(ExposureConfig(knots=5))
-    torch.testing.assert_close(curve.gain(0.3), torch.ones(3))
+def test_gain_in_sh_space_equals_gain_on_the_colour():
+    generator = torch.Generator().manual_seed(0)
+    n = 50
+    state = GaussianState(means=torch.zeros(n, 3), scales=torch.ones(n, 3),
+                          quats=torch.tensor([1.0, 0, 0, 0]).repeat(n, 1),
+                          opacities=torch.full((n,), 0.5),
+                          sh=torch.randn(n, 9, 3, generator=generator), sh_degree=2)
+    exposure = ExposureConfig(knots=4).build()
     with torch.no_grad():
-        curve.log_gains[1] = math.log(2.0)  # knot at t = 0.25
-    torch.testing.assert_close(curve.gain(0.25), torch.full((3,), 2.0))
-    torch.testing.assert_close(curve.gain(0.125), torch.full((3,), 2.0**0.5))
-    torch.testing.assert_close(curve.gain(1.5), torch.ones(3))  # clamped to t = 1
-
-
-def test_without_knots_the_gain_is_one():
-    assert torch.equal(ExposureCurve(ExposureConfig(knots=0)).gain(0.7), torch.ones(3))
-
-
-def test_fits_a_smooth_exposure_change():
-    curve = ExposureCurve(ExposureConfig(knots=8))
-    optimizer = torch.optim.Adam(curve.parameters(), lr=0.05)
-    times = torch.linspace(0, 1, 30)
-    truth = 1.0 + 0.15 * torch.sin(2 * math.pi * times)
-    for _ in range(300):
-        loss = sum((curve.gain(float(t))[0] - g) ** 2 for t, g in zip(times, truth))
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-    with torch.no_grad():
-        errors = [abs(float(curve.gain(float(t))[0]) - float(g)) for t, g in zip(times, truth)]
-    assert max(errors) < 0.03
+        exposure.log_gains.copy_(torch.randn(4, 3, generator=generator) * 0.3)
+    when = FrameTime(3, 0.37)
+    dirs = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1)
+    scaled = exposure.transform(state, None, when)
+    expected = eval_sh(2, state.sh, dirs) * exposure.gain(when.time)
+    torch.testing.assert_close(eval_sh(2, scaled.sh, dirs), expected, rtol=1e-5, atol=1e-6)
