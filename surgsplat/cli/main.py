@@ -38,7 +38,7 @@ def _root(
 
 def _register() -> None:
     from surgsplat.cli import (demo, eval_cmd, export_cmd, import_cmd, info, methods, phantom,
-                               render_videos, train)
+                               render_videos, report_cmd, train)
 
     app.command("demo")(demo.demo_command)
     app.command("phantom")(phantom.phantom_command)
@@ -49,6 +49,7 @@ def _register() -> None:
     app.command("eval")(eval_cmd.eval_command)
     app.command("render")(render_videos.render_command)
     app.command("export")(export_cmd.export_command)
+    app.command("report")(report_cmd.report_command)
 
 
 def main() -> None:
