@@ -51,3 +51,105 @@ def cli():
     """cli(*args) runs `surgsplat *args` as a user does (a subprocess) and returns the
     CompletedProcess: its exit status and its output."""
     return run_cli
+
+
+class HeadlessBrowser:
+    """Debian's chromium, headless, driven over the Chrome DevTools Protocol (no driver to
+    download): open a page, wait, collect console errors, take a screenshot."""
+
+    def __init__(self, executable: str, tmp: Path):
+        import socket
+
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            self.port = probe.getsockname()[1]
+        self.process = subprocess.Popen(
+            [executable, "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
+             "--enable-unsafe-swiftshader", f"--remote-debugging-port={self.port}",
+             f"--user-data-dir={tmp}", "--window-size=1200,800", "about:blank"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def _page_socket(self) -> str:
+        import json
+        import time
+        import urllib.request
+
+        for _ in range(100):
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{self.port}/json/list") as reply:
+                    pages = [p for p in json.load(reply) if p["type"] == "page"]
+                if pages:
+                    return pages[0]["webSocketDebuggerUrl"]
+            except OSError:
+                pass
+            time.sleep(0.2)
+        raise RuntimeError("chromium's DevTools endpoint did not come up")
+
+    def visit(self, url: str, seconds: float, until=None,
+              settle: float = 0.5) -> tuple[bytes, list[str]]:
+        """Open url, wait `seconds` (or until `until()` is true, at most `seconds`), then
+        `settle` more seconds; return the PNG screenshot and the console errors and exceptions
+        seen."""
+        import base64
+        import json
+        import time
+
+        from websockets.sync.client import connect
+
+        errors: list[str] = []
+        with connect(self._page_socket(), max_size=None) as socket:
+            counter = iter(range(1, 10**6))
+
+            def call(method: str, **params):
+                ident = next(counter)
+                socket.send(json.dumps({"id": ident, "method": method, "params": params}))
+                while True:
+                    message = json.loads(socket.recv())
+                    collect(message)
+                    if message.get("id") == ident:
+                        return message.get("result", {})
+
+            def collect(message: dict) -> None:
+                method, params = message.get("method"), message.get("params", {})
+                if method == "Runtime.exceptionThrown":
+                    errors.append(str(params.get("exceptionDetails", {}).get("text")))
+                elif method == "Runtime.consoleAPICalled" and params.get("type") == "error":
+                    errors.append(" ".join(str(a.get("value", a.get("description")))
+                                           for a in params.get("args", [])))
+                elif method == "Log.entryAdded" and params["entry"]["level"] == "error":
+                    errors.append(params["entry"]["text"])
+
+            for domain in ("Page.enable", "Runtime.enable", "Log.enable"):
+                call(domain)
+            call("Page.navigate", url=url)
+            deadline = time.monotonic() + seconds
+            while time.monotonic() < deadline and not (until and until()):
+                try:
+                    collect(json.loads(socket.recv(timeout=0.2)))
+                except TimeoutError:
+                    pass
+            settled = time.monotonic() + settle
+            while time.monotonic() < settled:
+                try:
+                    collect(json.loads(socket.recv(timeout=0.2)))
+                except TimeoutError:
+                    pass
+            shot = call("Page.captureScreenshot", format="png")
+        return base64.b64decode(shot["data"]), errors
+
+    def close(self) -> None:
+        self.process.terminate()
+        self.process.wait(timeout=10)
+
+
+@pytest.fixture
+def browser(tmp_path):
+    """A headless chromium (skips the test when chromium is not installed)."""
+    import shutil
+
+    executable = shutil.which("chromium") or shutil.which("chromium-browser")
+    if executable is None:
+        pytest.skip("chromium is not installed (.ci/run installs it)")
+    instance = HeadlessBrowser(executable, tmp_path / "chromium-profile")
+    yield instance
+    instance.close()

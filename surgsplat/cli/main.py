@@ -38,7 +38,7 @@ def _root(
 
 def _register() -> None:
     from surgsplat.cli import (demo, eval_cmd, export_cmd, import_cmd, info, methods, phantom,
-                               render_videos, report_cmd, train)
+                               render_videos, report_cmd, train, view)
 
     app.command("demo")(demo.demo_command)
     app.command("phantom")(phantom.phantom_command)
@@ -50,6 +50,7 @@ def _register() -> None:
     app.command("render")(render_videos.render_command)
     app.command("export")(export_cmd.export_command)
     app.command("report")(report_cmd.report_command)
+    app.command("view")(view.view_command)
 
 
 def main() -> None:

@@ -1,0 +1,36 @@
+"""`surgsplat view RUN`: an interactive 4D viewer of a run in the browser (viser, offline)."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from surgsplat.errors import SurgsplatError
+from surgsplat.export.viewer import RunViewer
+from surgsplat.train.run import load_trained_run
+
+
+def view_command(
+    run_dir: Annotated[Path, typer.Argument(help="Run folder written by `surgsplat train`.")],
+    port: Annotated[int, typer.Option(help="Port of the viewer's web server.")] = 8080,
+    host: Annotated[str, typer.Option(help="Address to serve on (127.0.0.1: this machine "
+                                           "only).")] = "127.0.0.1",
+    height: Annotated[int | None, typer.Option(
+        help="Rendered image height in pixels (default: the scene's).")] = None,
+) -> None:
+    """Orbit, pan and zoom a run, scrub or play its time, and switch between colour, depth and
+    normals; frames are rendered by surgsplat on this CPU. Ctrl-C stops the server."""
+    if not 0 < port < 65536:
+        raise SurgsplatError(f"--port must be in 1..65535, got {port}")
+    viewer = RunViewer(load_trained_run(run_dir), host=host, port=port, height=height)
+    Console().print(f"viewer at http://{host}:{port} (Ctrl-C stops it)", highlight=False)
+    try:
+        threading.Event().wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.stop()
