@@ -47,6 +47,23 @@ class ViewerFrame:
     seconds: float  # time it took to render and colour-map
 
 
+def view_image(run: TrainedRun, camera: Camera, index: int, channel: str) -> np.ndarray:
+    """uint8 RGB [H, W, 3] of `channel` of `run` at frame `index` seen by `camera`."""
+    frame = run.scene.frames[index]
+    background = torch.tensor(run.config.train.background, dtype=torch.float32)
+    out = render_frame(run.model, camera, FrameTime(index, frame.time), background)
+    if channel == "depth":
+        values = out.depth[out.alpha > 0.5]
+        near, far = (float(values.quantile(0.01)), float(values.quantile(0.99))) \
+            if values.numel() else (0.0, 1.0)
+        return colorize_depth(out.depth.numpy(), near, far)
+    if channel == "normal":
+        normals, valid, _ = surface_normals(out, camera.K)
+        return colorize_normals(normals.numpy(), valid.numpy())
+    source = out.rgb if channel == "rgb" else out.extras[channel]
+    return to_uint8(source.clamp(0, 1).numpy())
+
+
 def matrix_to_wxyz(rotation: np.ndarray) -> np.ndarray:
     """Unit quaternion (w, x, y, z) of a 3x3 rotation matrix."""
     w = math.sqrt(max(0.0, 1.0 + rotation[0, 0] + rotation[1, 1] + rotation[2, 2])) / 2.0
@@ -71,7 +88,6 @@ class RunViewer:
         self.run = run
         self.height = height  # None: the browser canvas's height
         self.moving_scale = moving_scale
-        self.background = torch.tensor(run.config.train.background, dtype=torch.float32)
         self.lock = threading.Lock()
         self.last: ViewerFrame | None = None
         self.frames_sent = 0
@@ -135,27 +151,12 @@ class RunViewer:
         timer.start()
 
     # ---- frames ----
-    def image(self, camera: Camera, index: int, channel: str) -> np.ndarray:
-        """uint8 RGB [H, W, 3] of `channel` at frame `index` seen by `camera`."""
-        frame = self.run.scene.frames[index]
-        out = render_frame(self.run.model, camera, FrameTime(index, frame.time), self.background)
-        if channel == "depth":
-            values = out.depth[out.alpha > 0.5]
-            near, far = (float(values.quantile(0.01)), float(values.quantile(0.99))) \
-                if values.numel() else (0.0, 1.0)
-            return colorize_depth(out.depth.numpy(), near, far)
-        if channel == "normal":
-            normals, valid, _ = surface_normals(out, camera.K)
-            return colorize_normals(normals.numpy(), valid.numpy())
-        source = out.rgb if channel == "rgb" else out.extras[channel]
-        return to_uint8(source.clamp(0, 1).numpy())
-
     def send(self, client, scale: float) -> None:
         """Render the current frame and channel for `client` and send it."""
         with self.lock:
             started = time.perf_counter()
             index, channel = int(self.time_slider.value), str(self.channel.value)
-            image = self.image(self.client_camera(client, scale), index, channel)
+            image = view_image(self.run, self.client_camera(client, scale), index, channel)
             self.last = ViewerFrame(index, channel, image, time.perf_counter() - started)
             self.frames_sent += 1
         client.scene.set_background_image(image, format="jpeg", jpeg_quality=90)

@@ -18,10 +18,15 @@ from surgsplat.train.trainer import Trainer
 pytest.importorskip("viser")
 
 
-def crop_mean(image: np.ndarray) -> np.ndarray:
-    """Mean RGB [3] of the central third of an image [H, W, 3]."""
-    height, width = image.shape[:2]
-    return image[height // 3: 2 * height // 3, width // 3: 2 * width // 3].reshape(-1, 3).mean(0)
+def central_correlation(first: np.ndarray, second: np.ndarray) -> float:
+    """Correlation of the grey levels of the central thirds of two RGB images, at 64x64."""
+    def centre(image):
+        height, width = image.shape[:2]
+        crop = image[height // 3: 2 * height // 3, width // 3: 2 * width // 3]
+        grey = cv2.cvtColor(np.ascontiguousarray(crop), cv2.COLOR_RGB2GRAY)
+        return cv2.resize(grey, (64, 64), interpolation=cv2.INTER_AREA).astype(float).ravel()
+
+    return float(np.corrcoef(centre(first), centre(second))[0, 1])
 
 
 def free_port() -> int:
@@ -49,11 +54,11 @@ def test_browser_shows_the_render_and_the_slider_changes_the_frame(run_dir, brow
         first = viewer.last.image
         screenshot = cv2.imdecode(np.frombuffer(shot, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
         (run_dir / "viewer-screenshot.png").write_bytes(shot)
-        # The page shows the render, not a blank canvas: the central third of the screenshot
-        # and of the rendered frame (the background fills the canvas) agree in colour.
-        centre = crop_mean(screenshot)
-        rendered = crop_mean(first)
-        assert np.abs(centre - rendered).max() < 25, (centre, rendered)
+        # The page shows the render, not a blank canvas: the central thirds of the screenshot
+        # and of the rendered frame (which fills the canvas) correlate, and are tissue-red.
+        # (Correlation, not equality: viser fades a new background in from white.)
+        assert central_correlation(screenshot, first) > 0.8
+        centre = screenshot[screenshot.shape[0] // 3: 2 * screenshot.shape[0] // 3].mean((0, 1))
         assert centre[0] > centre[2] + 20  # red over blue, as the tissue is
 
         sent = viewer.frames_sent
