@@ -87,6 +87,7 @@ def main() -> None:
               "command": "surgsplat train --method deform3dgs (small phantom)",
               "iters": args.iters, "repeats": args.repeats, "rows": rows}
     out = args.out or results_path("bench_threads", info["cpu"])
+    out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=1) + "\n")
     print(f"{'policy':>10} {'competing':>9} {'train s':>8} {'ratio':>6}")
     for row in rows:
