@@ -57,6 +57,10 @@ def render_threads_table(report: dict) -> str:
     for row in report["rows"]:
         lines.append(f"| {row['policy']} | {'yes' if row['competing_process'] else 'no'} "
                      f"| {row['train_s']:.1f} | {row['ratio_to_surgsplat_default']:.2f} |")
+    if "load_average_1min" in report:
+        load = report["load_average_1min"]
+        lines += ["", f"Load average of the machine (1 min): {load['start']:.1f} at the start, "
+                      f"{load['end']:.1f} at the end (2 would be both cores busy)."]
     if "note" in report:
         lines += ["", report["note"]]
     return "\n".join(lines)
