@@ -59,6 +59,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     rows = []
+    load_at_start = os.getloadavg()[0]  # other work on the machine, besides the benchmark's own
     with tempfile.TemporaryDirectory() as tmp:
         phantom = Path(tmp) / "phantom"
         subprocess.run(surgsplat_command("phantom", "--out", str(phantom), "--preset", "small"),
@@ -85,8 +86,11 @@ def main() -> None:
     report = {"benchmark": "bench_threads", "cpu": info["cpu"], "system": info,
               "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
               "command": "surgsplat train --method deform3dgs (small phantom)",
-              "iters": args.iters, "repeats": args.repeats, "rows": rows}
+              "iters": args.iters, "repeats": args.repeats,
+              "load_average_1min": {"start": load_at_start, "end": os.getloadavg()[0]},
+              "rows": rows}
     out = args.out or results_path("bench_threads", info["cpu"])
+    out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=1) + "\n")
     print(f"{'policy':>10} {'competing':>9} {'train s':>8} {'ratio':>6}")
     for row in rows:

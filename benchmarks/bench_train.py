@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import resource
 import shutil
 import tempfile
 import time
@@ -73,12 +74,17 @@ def run_case(scene_name: str, scene_dir: Path, preset: str, work: Path, minutes:
         config.train.iterations = iterations
     run_dir = work / f"{scene_name}-{preset}"
     shutil.rmtree(run_dir, ignore_errors=True)
-    curve, wall = train_within(config, load_scene(scene_dir), run_dir, minutes * 60,
-                               curve_every=max(config.train.iterations // 10, 1))
+    started = time.perf_counter()  # wall time includes loading the scene and building the model
+    scene = load_scene(scene_dir)
+    curve, _ = train_within(config, scene, run_dir, minutes * 60,
+                            curve_every=max(config.train.iterations // 10, 1))
+    wall = time.perf_counter() - started
     metrics = evaluate_run(load_trained_run(run_dir), EvalOptions())
     row = {"scene": scene_name, "method": preset, "iterations": metrics["iteration"],
            "train_seconds": round(metrics["train_seconds"], 1), "wall_seconds": round(wall, 1)}
     row.update({key: metrics[key] for key in REPORTED if key in metrics})
+    # measured here, on this process (which trained): the peak so far, cases run in sequence
+    row["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     row["curve"] = curve
     return row
 

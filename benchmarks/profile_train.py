@@ -5,8 +5,11 @@ frames of the main thread, waiting included) and sums the samples by part of the
     python benchmarks/profile_train.py --data PHANTOM [--method deform3dgs] [--iters 100]
                                        [--rate 200] [--out FILE]
 
-A sample counts for the first category (in the order of CATEGORIES) one of whose markers is in
-its stack; the rest is `other`. Results go to benchmarks/results/profile_train-<cpu>.json.
+Only the main thread's samples count (OpenMP workers and other threads only wait for it or work
+for it). A sample counts for the first category (in the order of CATEGORIES) one of whose
+markers is in its stack, the rest is `other`; shares are given for the whole run and for the
+samples inside a training step (stacks through --step-marker). Results go to
+benchmarks/results/profile_train-<cpu>.json.
 """
 
 from __future__ import annotations
@@ -38,15 +41,18 @@ CATEGORIES = {  # name: stack markers, most specific first
     "autograd engine (other ops' backward)": ("run_backward", "autograd/__init__.py"),
     "imports": ("_find_and_load",),
 }
+MAIN_THREAD = "main (surgsplat/cli/main.py"
 
 
-def categorise(stacks: Counter) -> Counter:
+def categorise(stacks: Counter) -> dict[str, float]:
+    """Share of the samples per category, largest first."""
     totals: Counter = Counter()
     for stack, count in stacks.items():
         name = next((name for name, markers in CATEGORIES.items()
                      if any(m in stack for m in markers)), "other (Python, torch ops)")
         totals[name] += count
-    return totals
+    total = sum(totals.values())
+    return {name: count / total for name, count in totals.most_common()}
 
 
 def main() -> None:
@@ -55,6 +61,8 @@ def main() -> None:
     parser.add_argument("--method", default="deform3dgs")
     parser.add_argument("--iters", type=int, default=100)
     parser.add_argument("--rate", type=int, default=200, help="samples per second")
+    parser.add_argument("--step-marker", default="Trainer.step",
+                        help="a frame every stack inside a training step has")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     py_spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
@@ -69,21 +77,24 @@ def main() -> None:
         stacks: Counter = Counter()
         for line in raw.read_text().splitlines():
             stack, _, count = line.rpartition(" ")
-            if stack:
+            if MAIN_THREAD in stack:
                 stacks[stack] += int(count)
-    totals = categorise(stacks)
-    total = sum(totals.values())
+    in_steps = Counter({s: n for s, n in stacks.items() if args.step_marker in s})
     info = native.system_info()
     report = {"benchmark": "profile_train", "cpu": info["cpu"], "system": info,
               "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
               "command": f"surgsplat train --method {args.method} --iters {args.iters}",
-              "data": args.data.name, "samples": total,
-              "shares": {name: count / total for name, count in totals.most_common()}}
+              "data": args.data.name, "samples": sum(stacks.values()),
+              "step_samples": sum(in_steps.values()),
+              "shares_whole_run": categorise(stacks), "shares_in_steps": categorise(in_steps)}
     out = args.out or results_path("profile_train", info["cpu"])
     out.write_text(json.dumps(report, indent=1) + "\n")
-    for name, share in report["shares"].items():
-        print(f"{share:7.1%}  {name}")
-    print(f"{total} samples; written to {out}")
+    for scope in ("shares_whole_run", "shares_in_steps"):
+        print(scope.replace("_", " ") + ":")
+        for name, share in report[scope].items():
+            print(f"  {share:7.1%}  {name}")
+    print(f"{report['samples']} main-thread samples ({report['step_samples']} in steps); "
+          f"written to {out}")
 
 
 if __name__ == "__main__":

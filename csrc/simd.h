@@ -49,6 +49,20 @@ struct Pack {
     typedef T Reg __attribute__((vector_size(sizeof(T) * kRegLanes)));
     Reg r[N];
 
+    // Register-wise loads and stores of N * kRegLanes values at any alignment. (A memcpy of the
+    // whole Pack goes through the stack in pieces narrower than a register: a stalled load.)
+    typedef T Unaligned __attribute__((vector_size(sizeof(T) * kRegLanes), aligned(alignof(T)),
+                                       may_alias));
+    SURGSPLAT_INLINE static Pack load(const T* source) {
+        Pack out;
+        for (int i = 0; i < N; ++i)
+            out.r[i] = *reinterpret_cast<const Unaligned*>(source + i * kRegLanes);
+        return out;
+    }
+    SURGSPLAT_INLINE void store(T* target) const {
+        for (int i = 0; i < N; ++i) *reinterpret_cast<Unaligned*>(target + i * kRegLanes) = r[i];
+    }
+
     SURGSPLAT_INLINE T& operator[](int i) { return reinterpret_cast<T*>(r)[i]; }
     SURGSPLAT_INLINE T operator[](int i) const { return reinterpret_cast<const T*>(r)[i]; }
 

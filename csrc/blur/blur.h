@@ -11,7 +11,6 @@
 
 #include <algorithm>
 #include <cstdint>
-#include <cstring>
 #include <vector>
 
 #include "simd.h"
@@ -28,13 +27,9 @@ constexpr int64_t kChunk = 2 * kLanes;  // columns per accumulator block
 
 inline int64_t round_up(int64_t n) { return (n + kChunk - 1) / kChunk * kChunk; }
 
-inline Lanes load(const float* p) {
-    Lanes v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-}
+SURGSPLAT_INLINE Lanes load(const float* p) { return Lanes::load(p); }
 
-inline void store(float* p, Lanes v) { std::memcpy(p, &v, sizeof v); }
+SURGSPLAT_INLINE void store(float* p, const Lanes& v) { v.store(p); }
 
 // dst[x] = sum_k taps[k] row[x + k - radius] for x in [0, round_up(width)): `row` has `radius`
 // zeros before it and zeros from `width` to round_up(width) + radius, so the loop has no

@@ -9,7 +9,6 @@
 
 #include <array>
 #include <cstdint>
-#include <cstring>
 #include <memory>
 #include <vector>
 
@@ -83,17 +82,14 @@ void block_cells(const Slabs& slabs, int64_t scale, const float* coords, int64_t
 
 // The first `count` (<= kLanes) floats of `source` as Lanes, zero beyond; and the reverse.
 inline Lanes load_lanes(const float* source, int64_t count) {
+    if (count == kLanes) return Lanes::load(source);
     Lanes lanes{};
-    if (count == kLanes) {
-        std::memcpy(&lanes, source, sizeof lanes);
-        return lanes;
-    }
     for (int64_t f = 0; f < count; ++f) lanes[f] = source[f];
     return lanes;
 }
 inline void store_lanes(float* target, Lanes lanes, int64_t count) {
     if (count == kLanes) {
-        std::memcpy(target, &lanes, sizeof lanes);
+        lanes.store(target);
         return;
     }
     for (int64_t f = 0; f < count; ++f) target[f] = lanes[f];

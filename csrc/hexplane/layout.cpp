@@ -41,13 +41,12 @@ void load_coordinates(const float* coords, int64_t first, int64_t count, Lanes (
     alignas(64) float lanes[kAxes][kLanes] = {};
     for (int64_t l = 0; l < count; ++l)
         for (int a = 0; a < kAxes; ++a) lanes[a][l] = coords[(first + l) * kAxes + a];
-    for (int a = 0; a < kAxes; ++a) std::memcpy(&axis[a], lanes[a], sizeof(Lanes));
+    for (int a = 0; a < kAxes; ++a) axis[a] = Lanes::load(lanes[a]);
 }
 
-template <typename V, typename T>
-void store(T (&lanes)[kLanes], V value) {
-    static_assert(sizeof(V) == sizeof(lanes));
-    std::memcpy(lanes, &value, sizeof(V));
+template <typename T>
+void store(T (&lanes)[kLanes], const Pack<T>& value) {
+    value.store(lanes);
 }
 
 }  // namespace
