@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import os
 import secrets
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO
 
@@ -26,9 +27,10 @@ def fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-def write_atomic(path: Path, write: Callable[[BinaryIO], None],
-                 keep_previous: Path | None = None) -> None:
-    """Replace `path` with what `write(handle)` writes to a binary handle.
+@contextmanager
+def replacing(path: Path, keep_previous: Path | None = None) -> Iterator[Path]:
+    """A temporary path beside `path` (same suffix) for the block to write, by name, in full;
+    when the block ends normally it replaces `path`, else it is removed.
 
     keep_previous: once the new file is complete, the old `path` (when there is one) becomes
     this file (a hard link, no copy), so a later-damaged `path` still has a complete
@@ -37,12 +39,14 @@ def write_atomic(path: Path, write: Callable[[BinaryIO], None],
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix}")
     try:
-        with open(tmp, "wb") as handle:
-            write(handle)
-            handle.flush()
-            os.fsync(handle.fileno())
+        yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         if keep_previous is not None and path.is_file():
             link = keep_previous.with_name(f".{keep_previous.name}.{tmp.name}")
             try:
@@ -58,6 +62,13 @@ def write_atomic(path: Path, write: Callable[[BinaryIO], None],
         raise
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_atomic(path: Path, write: Callable[[BinaryIO], None],
+                 keep_previous: Path | None = None) -> None:
+    """Replace `path` with what `write(handle)` writes to a binary handle (see `replacing`)."""
+    with replacing(path, keep_previous) as tmp, open(tmp, "wb") as handle:
+        write(handle)
 
 
 def write_text_atomic(path: Path, text: str) -> None:

@@ -54,7 +54,7 @@ def run_lock(run_dir: Path, create: bool = False) -> Iterator[None]:
                                  "folder") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        for orphan in run_dir.glob("**/.*.tmp"):  # left by a writer killed mid-write
+        for orphan in run_dir.glob("**/.*.tmp*"):  # left by a writer killed mid-write
             orphan.unlink(missing_ok=True)
         yield
     finally:

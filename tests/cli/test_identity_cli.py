@@ -8,6 +8,7 @@ import shutil
 
 import cv2
 import numpy as np
+import torch
 
 
 def one_error_line(result) -> str:
@@ -61,6 +62,9 @@ def test_resume_with_another_method_or_fewer_iterations(small_phantom, tmp_path,
         cli("train", "--out", str(run), "--resume", "--method", "endogaussian"))
     assert "cannot be shortened" in one_error_line(cli("train", "--out", str(run), "--resume",
                                                        "--iters", "2"))
+    torch.save({"iteration": 3, "method": "endogaussian"}, run / "checkpoints" / "latest.pt")
+    for args in (("eval", str(run)), ("train", "--out", str(run), "--resume", "--iters", "5")):
+        assert "holds a 'endogaussian' run, not 'deform3dgs'" in one_error_line(cli(*args))
 
 
 def test_demo_never_silently_reuses_another_run(small_phantom, tmp_path, cli):
