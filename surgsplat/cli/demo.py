@@ -13,9 +13,11 @@ from surgsplat.cli.info import print_summary_table
 from surgsplat.cli.render_videos import write_run_videos
 from surgsplat.cli.train import train_run
 from surgsplat.data.phantom.generate import PhantomConfig, generate_phantom
+from surgsplat.errors import SurgsplatError
 from surgsplat.export.report import write_report
 from surgsplat.methods.registry import PRESETS, method_config
-from surgsplat.train.run import load_trained_run
+from surgsplat.train.run import load_trained_run, read_run_config, run_lock
+from surgsplat.train.trainer import CHECKPOINT
 
 DEMO_ITERATIONS = 1500
 
@@ -27,14 +29,25 @@ def demo_command(
 ) -> None:
     """Generate the small phantom, train, evaluate against its ground truth, render videos and
     write an HTML report."""
-    console = Console()
     scene_dir, run_dir = out / "phantom", out / "run"
+    with run_lock(run_dir, create=True):
+        _demo(scene_dir, run_dir, method, iters)
+
+
+def _demo(scene_dir: Path, run_dir: Path, method: str, iters: int) -> None:
+    console = Console()
+    resume = (run_dir / CHECKPOINT).is_file()
+    if resume:
+        saved = read_run_config(run_dir)
+        if (saved.name, saved.train.iterations) != (method, iters):
+            raise SurgsplatError(f"{run_dir} holds a demo run of {saved.name} for "
+                                 f"{saved.train.iterations} iterations, not {method} for {iters}; "
+                                 f"choose another --out or delete {run_dir}")
     if not (scene_dir / "poses_bounds.npy").is_file():
         console.rule("1/4 phantom")
         generate_phantom(PhantomConfig(preset="small", motion="pulling"), scene_dir)
     print_summary_table(scene_dir)
     console.rule("2/4 train")
-    resume = (run_dir / "checkpoints" / "latest.pt").is_file()
     train_run(method_config(method), scene_dir, run_dir, resume=resume, iterations=iters)
     console.rule("3/4 evaluate")
     evaluate_and_report(run_dir)

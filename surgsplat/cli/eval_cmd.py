@@ -12,8 +12,10 @@ from rich.table import Table
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.cli.progress import progress_bar
+from surgsplat.errors import DataError
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
-from surgsplat.train.run import load_trained_run
+from surgsplat.train.run import load_trained_run, run_lock
+from surgsplat.train.trainer import scene_identity
 
 METRICS_FILE = "metrics.json"
 
@@ -23,7 +25,7 @@ def print_metrics(metrics: dict, console: Console) -> None:
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key, value in metrics.items():
-        if key == "conventions":
+        if isinstance(value, dict):  # conventions, scene
             continue
         if isinstance(value, float):
             text = f"{value:.4f}" if abs(value) < 10 else f"{value:.2f}"
@@ -37,10 +39,15 @@ def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
                         data: Path | None = None) -> dict:
     """Evaluate the run, write RUN/metrics.json, print the table; returns the metrics."""
     run = load_trained_run(run_dir, data)
+    if not run.scene.test_frames:
+        raise DataError(run.scene.root, "has no test frame (frames 1, 9, 17, ...): evaluation "
+                                        "needs a scene of at least 2 frames")
     with progress_bar() as bar:
         task = bar.add_task("evaluate", total=len(run.scene.test_frames))
         metrics = evaluate_run(run, options or EvalOptions(),
                                lambda done, _: bar.update(task, completed=done))
+    metrics["method"] = run.config.name
+    metrics["scene"] = scene_identity(run.scene)
     write_text_atomic(Path(run_dir) / METRICS_FILE, json.dumps(metrics, indent=2) + "\n")
     console = Console()
     print_metrics(metrics, console)
@@ -57,5 +64,6 @@ def eval_command(
     geometry: Annotated[bool, typer.Option(help="Geometry against gt/ meshes (phantoms).")] = True,
 ) -> None:
     """Evaluate a trained run on its test frames (every 8th frame from 1)."""
-    evaluate_and_report(run_dir, EvalOptions(alexnet_weights=alexnet_weights, geometry=geometry),
-                        data)
+    with run_lock(run_dir):
+        evaluate_and_report(run_dir, EvalOptions(alexnet_weights=alexnet_weights,
+                                                 geometry=geometry), data)

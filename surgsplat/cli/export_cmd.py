@@ -14,7 +14,7 @@ from surgsplat.data.scene import Scene
 from surgsplat.errors import SurgsplatError
 from surgsplat.export.ply import write_gaussian_ply
 from surgsplat.model.component import FrameTime
-from surgsplat.train.run import load_trained_run
+from surgsplat.train.run import load_trained_run, run_lock
 
 
 def chosen_moments(scene: Scene, frames: str, time: float | None) -> list[tuple[str, FrameTime]]:
@@ -52,15 +52,18 @@ def export_command(
     time: Annotated[float | None, typer.Option(
         help="One time in [0, 1] instead of --frames.")] = None,
     out: Annotated[Path | None, typer.Option(help="Folder (default RUN/export/ply).")] = None,
+    data: Annotated[Path | None, typer.Option(
+        help="Scene folder (default: the run's; its content must be the run's scene).")] = None,
 ) -> None:
     """Export a trained run's deformed Gaussians."""
     if not ply:
         raise SurgsplatError("nothing to export: pass --ply")
-    run = load_trained_run(run_dir)
-    folder = out or Path(run_dir) / "export" / "ply"
-    moments = chosen_moments(run.scene, frames, time)
-    with torch.no_grad():
-        for stem, when in moments:
-            write_gaussian_ply(run.model.state_at(when), folder / f"{stem}.ply")
+    with run_lock(run_dir):
+        run = load_trained_run(run_dir, data)
+        folder = out or Path(run_dir) / "export" / "ply"
+        moments = chosen_moments(run.scene, frames, time)
+        with torch.no_grad():
+            for stem, when in moments:
+                write_gaussian_ply(run.model.state_at(when), folder / f"{stem}.ply")
     Console().print(f"{len(moments)} PLY file(s), {run.model.gaussians.num_gaussians} Gaussians "
                     f"each, in {folder}")

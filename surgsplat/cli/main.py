@@ -1,16 +1,22 @@
 """`surgsplat <command>`: the command-line entry point.
 
 Each command lives in its own module of this package as a plain function with typer
-annotations; this module only registers them and turns user errors into one clear line.
+annotations; this module only registers them and turns user errors, operating-system errors
+(permissions, a full disk, a missing folder, a file where a folder belongs) and stops (Ctrl-C,
+SIGTERM) into one clear line.
 """
 
 from __future__ import annotations
 
+import functools
+import signal
 import sys
+from collections.abc import Callable
 from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from surgsplat.errors import SurgsplatError
 
@@ -36,30 +42,60 @@ def _root(
         set_threads(threads)
 
 
+def _stoppable(command: Callable) -> Callable:
+    """`command` with a stop (Ctrl-C or SIGTERM, seen as KeyboardInterrupt) turned into a
+    SurgsplatError; commands that save work on a stop (train) report it themselves first."""
+
+    @functools.wraps(command)
+    def run(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except KeyboardInterrupt:
+            raise SurgsplatError("interrupted (Ctrl-C or SIGTERM); every file it wrote is "
+                                 "complete") from None
+
+    return run
+
+
 def _register() -> None:
     from surgsplat.cli import (demo, eval_cmd, export_cmd, import_cmd, info, methods, phantom,
                                render_videos, report_cmd, train, view)
 
-    app.command("demo")(demo.demo_command)
-    app.command("phantom")(phantom.phantom_command)
-    app.command("import")(import_cmd.import_command)
-    app.command("info")(info.info_command)
-    app.command("methods")(methods.methods_command)
-    app.command("train")(train.train_command)
-    app.command("eval")(eval_cmd.eval_command)
-    app.command("render")(render_videos.render_command)
-    app.command("export")(export_cmd.export_command)
-    app.command("report")(report_cmd.report_command)
-    app.command("view")(view.view_command)
+    for name, command in (("demo", demo.demo_command), ("phantom", phantom.phantom_command),
+                          ("import", import_cmd.import_command), ("info", info.info_command),
+                          ("methods", methods.methods_command), ("train", train.train_command),
+                          ("eval", eval_cmd.eval_command),
+                          ("render", render_videos.render_command),
+                          ("export", export_cmd.export_command),
+                          ("report", report_cmd.report_command), ("view", view.view_command)):
+        app.command(name)(_stoppable(command))
+
+
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM takes Ctrl-C's path: training checkpoints, then the command stops cleanly."""
+    raise KeyboardInterrupt
+
+
+def os_error_line(err: OSError) -> str:
+    """`<path>: <what>` for an OSError (the path when it names one)."""
+    what = err.strerror or str(err)
+    if err.filename is not None and err.filename2 is not None:
+        return f"{err.filename} -> {err.filename2}: {what}"
+    return f"{err.filename}: {what}" if err.filename is not None else what
 
 
 def main() -> None:
-    """Run the CLI; a SurgsplatError becomes `error: <message>` and exit status 2."""
+    """Run the CLI; a SurgsplatError or an OSError becomes `error: <message>` and exit status 2."""
     _register()
+    signal.signal(signal.SIGTERM, _terminate)
+    console = Console(stderr=True, soft_wrap=True)
     try:
         app(standalone_mode=True)
     except SurgsplatError as err:
-        Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {err}", highlight=False)
+        console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+        sys.exit(2)
+    except OSError as err:
+        console.print(f"[bold red]error:[/] {escape(os_error_line(err))}", highlight=False)
         sys.exit(2)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -15,9 +16,12 @@ from surgsplat.eval.normals import surface_normals
 from surgsplat.export.video import colorize_depth, colorize_normals, even_size, to_uint8, write_video
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
-from surgsplat.train.run import TrainedRun, load_trained_run
+from surgsplat.errors import SurgsplatError
+from surgsplat.train.run import TrainedRun, load_trained_run, run_lock
 
 VIDEO_NAMES = ("rgb.mp4", "depth.mp4", "normal.mp4", "side_by_side.mp4")
+MAX_FPS = 1000.0
+"""Largest --fps accepted."""
 
 
 def depth_range(run: TrainedRun) -> tuple[float, float]:
@@ -62,9 +66,14 @@ def render_command(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `surgsplat train`.")],
     out: Annotated[Path | None, typer.Option(help="Video folder (default RUN/videos).")] = None,
     fps: Annotated[float, typer.Option(help="Frames per second of the videos.")] = 15.0,
+    data: Annotated[Path | None, typer.Option(
+        help="Scene folder (default: the run's; its content must be the run's scene).")] = None,
 ) -> None:
     """Render RGB, colour-mapped depth, normal maps and input|render|depth side-by-side mp4
     videos."""
-    run = load_trained_run(run_dir)
-    paths = write_run_videos(run, out or run_dir / "videos", fps)
+    if not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
+        raise SurgsplatError(f"--fps must be a number in (0, {MAX_FPS:g}], got {fps}")
+    with run_lock(run_dir):
+        run = load_trained_run(run_dir, data)
+        paths = write_run_videos(run, out or run_dir / "videos", fps)
     Console().print("videos: " + ", ".join(str(p) for p in paths))

@@ -16,7 +16,8 @@ from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import (apply_values, method_from_values, parse_assignment,
                                          read_config_file)
 from surgsplat.methods.registry import PRESETS, method_config
-from surgsplat.train.run import read_run_config, read_run_scene
+from surgsplat.train.checkpoint import previous_path
+from surgsplat.train.run import read_run_config, read_run_scene, run_lock
 from surgsplat.train.trainer import CHECKPOINT, StepStats, Trainer
 
 
@@ -47,7 +48,13 @@ def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
         config = apply_values(config, {"train": {"iterations": iterations}}, where="--iters")
     trainer = Trainer(config, scene, out)
     if resume:
-        trainer.load(checkpoint)
+        damaged = trainer.load(checkpoint)
+        if damaged is not None:
+            console.print(f"{damaged}; continuing from the checkpoint kept before it, "
+                          f"{previous_path(checkpoint)}", markup=False, highlight=False)
+        if trainer.iteration > trainer.config.train.iterations:
+            raise SurgsplatError(f"{out} is at iteration {trainer.iteration}, past --iters "
+                                 f"{trainer.config.train.iterations}; a run cannot be shortened")
         console.print(f"resuming {out} at iteration {trainer.iteration}")
     with progress_bar(TextColumn("loss {task.fields[loss]:.4f}"),
                       TextColumn("PSNR {task.fields[psnr]:.2f}"),
@@ -105,11 +112,20 @@ def train_command(
         if config is not None or set_:
             raise SurgsplatError("--config and --set change a new run; a resumed run keeps its "
                                  "saved config (only --iters may extend it)")
-        saved = read_run_config(out) if (out / CHECKPOINT).is_file() else None
-        if saved is not None and method is not None and method != saved.name:
-            raise SurgsplatError(f"{out} holds a {saved.name!r} run; --method {method} does not "
-                                 "apply to it")
-        train_run(method_config(saved.name if saved else method or "deform3dgs"), data, out,
-                  resume, iters)
+        if not out.is_dir():
+            raise SurgsplatError(f"{out / CHECKPOINT}: nothing to resume (no run folder {out})")
+        with run_lock(out):
+            if not (out / CHECKPOINT).is_file():
+                raise SurgsplatError(f"{out / CHECKPOINT}: nothing to resume (no checkpoint in "
+                                     f"{out})")
+            saved = read_run_config(out)
+            if method is not None and method != saved.name:
+                raise SurgsplatError(f"{out} holds a {saved.name!r} run; --method {method} does "
+                                     "not apply to it")
+            train_run(method_config(saved.name), data, out, resume, iters)
         return
-    train_run(build_method_config(method, config, set_ or []), data, out, resume, iters)
+    new_config = build_method_config(method, config, set_ or [])
+    if data is None:
+        raise SurgsplatError("--data is required unless --resume continues a run")
+    with run_lock(out, create=True):
+        train_run(new_config, data, out, resume, iters)

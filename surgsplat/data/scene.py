@@ -8,13 +8,22 @@ its tool and field-of-view masks.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+import sys
+import tempfile
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
+import tifffile
 import torch
+from PIL import Image, ImageFile
 from torch import Tensor
 
 from surgsplat.data.layout import (DEPTH_DIR, DEPTH_SUFFIXES, FOV_FILE, IMAGE_SUFFIXES,
@@ -30,6 +39,8 @@ ROTATION_TOLERANCE = 1e-3
 """Largest |R^T R - I| entry of a pose's rotation block accepted as a rotation."""
 FOCAL_TOLERANCE = 1e-3
 """Largest relative difference between the hwf focal and scene.json's fx."""
+MIN_SIZE = 16
+"""Smallest frame width and height accepted, pixels (one 16x16 rasterisation tile)."""
 
 
 @dataclass(frozen=True)
@@ -104,6 +115,7 @@ class Scene:
     has_depth: bool
     has_masks: bool  # tool masks (masks/) present
     has_fov: bool  # a field-of-view mask (fov_mask.png) present
+    fingerprint: str = ""  # hex digest of the decoded content (see load_scene); "" = not known
 
     @property
     def camera(self) -> Camera:
@@ -142,11 +154,75 @@ def is_test_index(index: int) -> bool:
     return index % TEST_EVERY == TEST_OFFSET
 
 
+@contextmanager
+def native_stderr_to(sink: list[str]) -> Iterator[None]:
+    """Collect what native libraries (libpng, libjpeg, libtiff inside OpenCV) print to the
+    process's stderr during the block into `sink`, instead of letting it reach the user
+    without a file name."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            capture.seek(0)
+            text = capture.read().decode(errors="replace").strip()
+            if text:
+                sink.append(text)
+
+
+def verify_image_file(path: Path, what: str) -> None:
+    """Decode the whole of an image file strictly (Pillow with truncated images refused; TIFF
+    by tifffile): DataError naming the file when it is missing, truncated or corrupt, so no
+    partly decoded (grey-filled) frame is ever used."""
+    if not path.is_file():
+        raise DataError(path, f"missing: expected {what}")
+    if path.stat().st_size == 0:
+        raise DataError(path, f"is empty (0 bytes): expected {what}")
+    try:
+        if path.suffix.lower() in (".tif", ".tiff"):
+            tifffile.imread(path)
+            return
+        ImageFile.LOAD_TRUNCATED_IMAGES = False
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # decoder notes; any real fault raises below
+            with Image.open(path) as image:
+                image.load()
+    except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError) as err:
+        raise DataError(path, f"cannot be read as {what}: truncated or corrupt ({err})") from None
+
+
+def decode_image(path: Path, what: str) -> np.ndarray:
+    """An image file's pixels as cv2.imread(IMREAD_UNCHANGED) gives them (BGR order, uint8 or
+    uint16, 2 or 3 dimensions), after verify_image_file; what the native decoders print is
+    passed on as a warning that names the file."""
+    verify_image_file(path, what)
+    printed: list[str] = []
+    with native_stderr_to(printed):
+        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if printed:
+        warnings.warn(f"{path}: {' '.join(printed)}", stacklevel=2)
+    if raw is None:
+        raise DataError(path, f"cannot be read as {what} (corrupt or unknown format)")
+    return raw
+
+
+def read_npy(path: Path) -> np.ndarray:
+    """A .npy array (no pickles); DataError naming the file when it is missing, empty,
+    truncated or not a .npy file."""
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as err:
+        raise DataError(path, f"cannot be read as a .npy array ({err or type(err).__name__})") \
+            from None
+
+
 def read_image(path: Path) -> np.ndarray:
     """An image file as uint8 RGB [H, W, 3]; 16-bit images are reduced to 8 bits."""
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise DataError(path, "cannot be read as an image (missing, corrupt or unknown format)")
+    raw = decode_image(path, "an image")
     if raw.dtype == np.uint16:
         raw = (raw // 257).astype(np.uint8)
     if raw.dtype != np.uint8:
@@ -165,20 +241,19 @@ def read_depth(path: Path, depth_scale: float) -> np.ndarray:
     suffix = path.suffix.lower()
     try:
         if suffix == ".npy":
-            depth = np.load(path, allow_pickle=False)
+            depth = read_npy(path)
         elif suffix == ".npz":
             with np.load(path, allow_pickle=False) as archive:
                 if len(archive.files) != 1:
                     raise DataError(path, f"expected one array in the .npz, found {archive.files}")
                 depth = archive[archive.files[0]]
         else:
-            depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if depth is None:
-                raise DataError(path, "cannot be read as a depth image (missing or corrupt)")
+            depth = decode_image(path, "a depth image")
             if depth.dtype in (np.uint8, np.uint16):
                 depth = depth.astype(np.float32) * depth_scale
-    except (OSError, ValueError) as err:
-        raise DataError(path, f"cannot be read as a depth array ({err})") from err
+    except (OSError, ValueError, EOFError) as err:
+        raise DataError(path, f"cannot be read as a depth array ({err or type(err).__name__})") \
+            from err
     depth = np.asarray(depth)
     if depth.ndim == 3 and depth.shape[2] in (3, 4) and suffix not in (".npy", ".npz"):
         depth = depth[..., 0]
@@ -212,9 +287,7 @@ def read_fov_mask(path: Path) -> np.ndarray:
 
 def _read_binary_mask(path: Path, on_value: int) -> np.ndarray:
     """bool [H, W]: 8-bit values above on_value / 2 (other depths: above half the maximum)."""
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise DataError(path, "cannot be read as a mask image (missing or corrupt)")
+    raw = decode_image(path, "a mask image")
     if raw.ndim == 3:
         raw = raw[..., 0]
     threshold = on_value // 2 if raw.dtype == np.uint8 else raw.max(initial=0) // 2
@@ -225,10 +298,7 @@ def read_poses_bounds(path: Path) -> np.ndarray:
     """poses_bounds.npy as float64 [N, 17]."""
     if not path.is_file():
         raise DataError(path, "missing: expected an LLFF poses_bounds.npy array of shape [N, 17]")
-    try:
-        poses = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise DataError(path, f"cannot be read as a .npy array ({err})") from err
+    poses = read_npy(path)
     if poses.ndim != 2 or poses.shape[1] != 17 or poses.shape[0] == 0:
         raise DataError(path, f"expected shape [N, 17] (LLFF 3x5 pose block + near, far), "
                               f"got {poses.shape}")
@@ -305,6 +375,10 @@ def _folder_files(root: Path, name: str, suffixes: tuple[str, ...], required: bo
 def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
     """Load and validate a scene folder.
 
+    The scene's fingerprint is a BLAKE2b digest of what was decoded: the poses, the camera
+    matrix and every frame's 8-bit image, depth and masks, so a run can tell its own scene from
+    another one (moved or re-encoded copies included) without keeping the frames.
+
     depth_scale: scene units per stored integer of PNG/TIFF depth files; overrides scene.json
     (whose default is 1.0, e.g. EndoNeRF's own 8-bit depth maps).
     """
@@ -333,8 +407,13 @@ def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
     first_image = read_image(image_files[0])
     size = first_image.shape[:2]
     height, width = size
+    if min(height, width) < MIN_SIZE:
+        raise DataError(image_files[0], f"is {height}x{width} (HxW); surgsplat needs frames of "
+                                        f"at least {MIN_SIZE}x{MIN_SIZE} pixels")
     cameras = cameras_from_poses(poses, poses_path, height, width, meta.intrinsics,
                                  root / META_FILE)
+    digest = hashlib.blake2b(poses.tobytes(), digest_size=16)
+    digest.update(cameras[0].K.numpy().tobytes())
     fov_path = root / FOV_FILE
     has_fov = fov_path.is_file()
     fov = torch.ones(size, dtype=torch.bool)  # shared by every frame
@@ -342,15 +421,18 @@ def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
         fov_np = read_fov_mask(fov_path)
         _check_size(fov_path, fov_np.shape, size)
         fov = torch.from_numpy(fov_np)
+        digest.update(fov_np.tobytes())
 
     frames = []
     for index, image_path in enumerate(image_files):
         image = first_image if index == 0 else read_image(image_path)
         _check_size(image_path, image.shape[:2], size)
+        digest.update(image.tobytes())
         depth = None
         if depth_files:
             depth_np = read_depth(depth_files[index], meta.depth_scale)
             _check_size(depth_files[index], depth_np.shape, size)
+            digest.update(depth_np.tobytes())
             depth = torch.from_numpy(depth_np)
         tool = torch.zeros(size, dtype=torch.bool)
         if mask_files:
@@ -360,6 +442,7 @@ def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
                 raise DataError(mask_files[index], "marks every pixel as tool: no tissue is "
                                                    "visible")
             tool = torch.from_numpy(tool_np)
+            digest.update(tool_np.tobytes())
             if has_fov and not (fov & ~tool).any():
                 raise DataError(mask_files[index], f"marks every pixel inside {FOV_FILE} as "
                                                    "tool: no tissue is visible")
@@ -369,7 +452,8 @@ def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
                             fov=fov))
     near, far = (float(v) for v in poses[0, 15:17])
     return Scene(root=root, frames=frames, meta=meta, near=near, far=far,
-                 has_depth=bool(depth_files), has_masks=bool(mask_files), has_fov=has_fov)
+                 has_depth=bool(depth_files), has_masks=bool(mask_files), has_fov=has_fov,
+                 fingerprint=digest.hexdigest())
 
 
 def _check_size(path: Path, shape: tuple[int, ...], expected: tuple[int, int]) -> None:

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from surgsplat.data.frames_source import name_numbers
+from surgsplat.data.scene import decode_image
 from surgsplat.errors import DataError, SurgsplatError
 
 MASK_MATCHES = ("auto", "number", "order")
@@ -29,9 +29,7 @@ def read_tool_labels(path: Path, tool_labels: tuple[int, ...] | None) -> np.ndar
     tool_labels None: a binary mask, any nonzero value (in any channel) is tool; it must hold at
     most two distinct values. Otherwise a class-ID mask whose pixels in `tool_labels` are tool.
     """
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise DataError(path, "cannot be read as a mask image (missing, corrupt or unknown format)")
+    raw = decode_image(path, "a mask image")
     if raw.ndim == 3:
         raw = raw[..., :3]
     if tool_labels is None:

@@ -20,7 +20,7 @@ import torch
 
 from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.layout import frame_stem
-from surgsplat.data.scene import Camera
+from surgsplat.data.scene import Camera, read_npy
 from surgsplat.eval.geometry_metrics import depth_rmse, geometry_metrics
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
@@ -82,7 +82,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         gt_normals = normals_path(scene.root, frame.index)
         if options.geometry and gt_normals.is_file():
             normals, valid, normal_source = surface_normals(out, frame.camera.K)
-            truth = torch.from_numpy(np.load(gt_normals, allow_pickle=False))
+            truth = torch.from_numpy(read_npy(gt_normals))
             angles.append(normal_angle_deg(normals, truth, valid & frame.tissue))
         for key, value in row.items():
             rows.setdefault(key, []).append(value)

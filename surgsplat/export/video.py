@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -9,26 +10,30 @@ import cv2
 import imageio_ffmpeg
 import numpy as np
 
+from surgsplat.atomic import replacing
+
 
 def write_video(path: Path, frames: Iterable[np.ndarray], fps: float = 15.0) -> int:
-    """Write uint8 RGB frames [H, W, 3] (all the same size, H and W even) to an H.264 mp4;
-    returns the number of frames written."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    writer = None
+    """Write uint8 RGB frames [H, W, 3] (all the same size, H and W even) to an H.264 mp4,
+    atomically (a stop part-way leaves the previous file, or none); returns the number of
+    frames written."""
+    frames = iter(frames)
+    first = next(frames, None)
+    if first is None:
+        return 0
     count = 0
-    try:
-        for frame in frames:
-            if writer is None:
-                height, width = frame.shape[:2]
-                writer = imageio_ffmpeg.write_frames(
-                    str(path), (width, height), fps=fps, codec="libx264", pix_fmt_in="rgb24",
-                    pix_fmt_out="yuv420p", macro_block_size=2, quality=8,
-                    output_params=["-loglevel", "error"])
-                writer.send(None)
-            writer.send(np.ascontiguousarray(frame, dtype=np.uint8))
-            count += 1
-    finally:
-        if writer is not None:
+    with replacing(path) as tmp:
+        height, width = first.shape[:2]
+        writer = imageio_ffmpeg.write_frames(
+            str(tmp), (width, height), fps=fps, codec="libx264", pix_fmt_in="rgb24",
+            pix_fmt_out="yuv420p", macro_block_size=2, quality=8,
+            output_params=["-loglevel", "error"])
+        writer.send(None)
+        try:
+            for frame in itertools.chain([first], frames):
+                writer.send(np.ascontiguousarray(frame, dtype=np.uint8))
+                count += 1
+        finally:
             writer.close()
     return count
 

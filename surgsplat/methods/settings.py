@@ -37,6 +37,9 @@ class TrainConfig:
     """Colour behind all Gaussians (endoscopic scenes are dark)."""
     checkpoint_every: int = 500
     """Write RUN/checkpoints/latest.pt every this many iterations (and at the end, and on Ctrl-C)."""
+    checkpoint_seconds: float = 60.0
+    """Also write it when this many seconds of wall time have passed since the last one, so a
+    kill -9 loses at most about this much training."""
     seed: int = 0
     """Seed of frame sampling and of densification."""
 

@@ -18,10 +18,31 @@ from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianModel
 
 
+def previous_path(path: Path) -> Path:
+    """Where the checkpoint before `path` is kept: checkpoints/latest.pt -> previous.pt."""
+    return path.with_name("previous" + path.suffix)
+
+
 def save_atomic(state: dict, path: Path) -> None:
-    """Write `state` to `path` atomically: a crash or Ctrl-C during the write leaves the
-    previous checkpoint intact."""
-    write_atomic(path, lambda handle: torch.save(state, handle))
+    """Write `state` to `path` atomically: a crash, kill or full disk during the write leaves
+    the previous checkpoint intact; the one it replaces is kept as previous_path(path)."""
+    write_atomic(path, lambda handle: torch.save(state, handle), keep_previous=previous_path(path))
+
+
+def load_latest_or_previous(path: Path) -> tuple[dict, Path, DataError | None]:
+    """The checkpoint at `path`, or, when that one is damaged, the one kept before it: (state,
+    the file it came from, the error that made `path` unusable or None). DataError about
+    `path` when neither loads."""
+    try:
+        return load_checkpoint(path), path, None
+    except DataError as err:
+        previous = previous_path(path)
+        if not previous.is_file():
+            raise
+        try:
+            return load_checkpoint(previous), previous, err
+        except DataError:
+            raise err from None
 
 
 def load_checkpoint(path: Path) -> dict:
@@ -31,7 +52,9 @@ def load_checkpoint(path: Path) -> dict:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several types for corrupt or unsafe files
-        raise DataError(path, f"cannot be read as a surgsplat checkpoint ({err})") from err
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise DataError(path, f"cannot be read as a surgsplat checkpoint: damaged or not one "
+                              f"({first})") from err
     if not isinstance(state, dict) or "iteration" not in state:
         raise DataError(path, "is not a surgsplat checkpoint (no 'iteration' entry)")
     return state

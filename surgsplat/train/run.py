@@ -2,18 +2,63 @@
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from surgsplat.data.scene import Scene, load_scene
-from surgsplat.errors import DataError
+from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import method_from_values
 from surgsplat.methods.registry import method_config
 from surgsplat.model.dynamic import SplatModel
-from surgsplat.train.checkpoint import load_checkpoint, model_from_state
-from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, SCENE_FILE
+from surgsplat.train.checkpoint import load_checkpoint, model_from_state, previous_path
+from surgsplat.train.trainer import (CHECKPOINT, CONFIG_FILE, SCENE_FILE, SCENE_ID_FILE,
+                                     scene_identity)
+
+LOCK_FILE = ".lock"
+"""RUN/.lock: held (flock, exclusive) by the one process writing the run; holds its PID."""
+
+
+@contextmanager
+def run_lock(run_dir: Path, create: bool = False) -> Iterator[None]:
+    """Own the run folder `run_dir` while the block runs: an exclusive flock on RUN/.lock,
+    released when the process ends however it ends. Another process that holds it stops this
+    one with a SurgsplatError naming the folder and that process's PID. The folder is created
+    when `create`, else it must exist. Temporary files that a killed writer left are removed."""
+    run_dir = Path(run_dir)
+    if create:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    elif not run_dir.is_dir():
+        raise DataError(run_dir, "is not a folder: expected a run folder written by "
+                                 "`surgsplat train`")
+    path = run_dir / LOCK_FILE
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = ""
+            for _ in range(20):  # the holder writes its PID just after taking the lock
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
+                if holder:
+                    break
+                time.sleep(0.05)
+            raise SurgsplatError(f"{run_dir}: in use by another surgsplat process (PID "
+                                 f"{holder or 'unknown'}); wait for it to end or choose another "
+                                 "folder") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        for orphan in run_dir.glob("**/.*.tmp*"):  # left by a writer killed mid-write
+            orphan.unlink(missing_ok=True)
+        yield
+    finally:
+        os.close(fd)
 
 
 def read_run_config(run_dir: Path) -> MethodConfig:
@@ -32,13 +77,43 @@ def read_run_config(run_dir: Path) -> MethodConfig:
 
 
 def read_run_scene(run_dir: Path, data_dir: Path | None = None) -> Scene:
-    """The run's scene (the path in RUN/scene.txt, or `data_dir` when given)."""
+    """The run's scene (the path in RUN/scene.txt, or `data_dir` when given), checked against
+    the identity saved in RUN/scene.json: DataError saying what differs when it is another."""
     if data_dir is None:
         path = Path(run_dir) / SCENE_FILE
         if not path.is_file():
             raise DataError(path, "missing: the run does not say which scene it was trained on")
         data_dir = Path(path.read_text().strip())
-    return load_scene(data_dir)
+        if not data_dir.is_dir():
+            raise DataError(data_dir, f"missing: the run's scene (named in {path}) has moved or "
+                                      "been deleted; pass --data with its location")
+    scene = load_scene(data_dir)
+    check_scene_identity(run_dir, scene)
+    return scene
+
+
+def check_scene_identity(run_dir: Path, scene: Scene) -> None:
+    """DataError naming what differs (frame count, size, content) when `scene` is not the one
+    RUN/scene.json describes; runs from before scene.json are not checked."""
+    path = Path(run_dir) / SCENE_ID_FILE
+    if not path.is_file():
+        return
+    try:
+        saved = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise DataError(path, f"is not valid JSON ({err})") from err
+    found = scene_identity(scene)
+    where = f"{scene.root} is not the scene this run was trained on ({saved.get('path')})"
+    if saved.get("frames") != found["frames"]:
+        raise DataError(path, f"{where}: {found['frames']} frames, the run's has "
+                              f"{saved.get('frames')}")
+    if (saved.get("width"), saved.get("height")) != (found["width"], found["height"]):
+        raise DataError(path, f"{where}: frames of {found['width']}x{found['height']} (WxH), "
+                              f"the run's are {saved.get('width')}x{saved.get('height')}")
+    if saved.get("fingerprint") != found["fingerprint"]:
+        raise DataError(path, f"{where}: same frame count and size but other content "
+                              f"(fingerprint {found['fingerprint']}, the run's "
+                              f"{saved.get('fingerprint')})")
 
 
 @dataclass
@@ -59,8 +134,18 @@ def load_trained_run(run_dir: Path, data_dir: Path | None = None) -> TrainedRun:
     config = read_run_config(run_dir)
     scene = read_run_scene(run_dir, data_dir)
     path = run_dir / CHECKPOINT
-    state = load_checkpoint(path)
+    try:
+        state = load_checkpoint(path)
+    except DataError as err:
+        if not previous_path(path).is_file():
+            raise
+        raise DataError(path, f"{err.problem}; `surgsplat train --out {run_dir} --resume` "
+                              f"continues from {previous_path(path).name}, the checkpoint "
+                              "kept before it") from None
     model = model_from_state(config, state, path)
+    if state.get("num_frames", len(scene.frames)) != len(scene.frames):
+        raise DataError(path, f"was trained on {state['num_frames']} frames, but {scene.root} "
+                              f"holds {len(scene.frames)}")
     model.eval()
     return TrainedRun(run_dir=run_dir, config=config, scene=scene, model=model,
                       iteration=int(state["iteration"]),

@@ -3,7 +3,9 @@ loss terms, densification by a Strategy object, atomic checkpoints, resume, and 
 Ctrl-C. The loop knows components only through their contract (`surgsplat.model.component`).
 
 A run folder holds config.json (the resolved MethodConfig), scene.txt (the scene path),
-checkpoints/latest.pt, and train_log.jsonl (one JSON line per logged step, with every loss term).
+scene.json (what identifies the scene: path, content fingerprint, frame count and size),
+checkpoints/latest.pt, and train_log.jsonl (one JSON line per logged step, with every loss term;
+iterations strictly increasing, none past the checkpoint once a run resumes).
 """
 
 from __future__ import annotations
@@ -21,19 +23,20 @@ from torch import Tensor
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.data.scene import Frame, Scene
-from surgsplat.errors import SurgsplatError
+from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig, to_dict
 from surgsplat.methods.settings import LossWeight
 from surgsplat.model.component import FrameTime, ParamGroup, RenderContext, SceneInfo, SetupContext
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.init_points import initial_points
-from surgsplat.train.checkpoint import (build_components, load_checkpoint, model_from_state,
-                                        model_state, save_atomic)
+from surgsplat.train.checkpoint import (build_components, load_latest_or_previous,
+                                        model_from_state, model_state, save_atomic)
 from surgsplat.train.strategy import DensifyStrategy
 
 CONFIG_FILE = "config.json"
 SCENE_FILE = "scene.txt"
+SCENE_ID_FILE = "scene.json"
 CHECKPOINT = "checkpoints/latest.pt"
 LOG_FILE = "train_log.jsonl"
 LOG_EVERY = 10
@@ -68,6 +71,13 @@ def scene_info(scene: Scene) -> SceneInfo:
                      train_indices=tuple(frame.index for frame in scene.train_frames))
 
 
+def scene_identity(scene: Scene) -> dict:
+    """What tells `scene` apart from another: its path, content fingerprint, frame count and
+    size (pixels); saved in a run folder and in metrics.json."""
+    return {"path": str(scene.root.resolve()), "fingerprint": scene.fingerprint,
+            "frames": len(scene.frames), "width": scene.width, "height": scene.height}
+
+
 def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str]) -> None:
     """Every declared term has a weight and every weight names a declared term."""
     unknown = sorted(set(weights) - set(declared))
@@ -78,6 +88,25 @@ def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str])
     if missing:
         raise SurgsplatError(f"losses.{missing[0]}: component {declared[missing[0]]!r} computes "
                              f"this term but the method gives it no weight")
+
+
+def trim_log(path: Path, iteration: int) -> None:
+    """Cut the training log back to its entries up to `iteration` (an atomic rewrite), so that
+    after a kill, a stop or a resume it holds each iteration at most once, in increasing order,
+    and nothing past the checkpoint the run continues from. Unreadable lines (a line cut by a
+    kill) are dropped."""
+    if not path.is_file():
+        return
+    kept = []
+    for line in path.read_text(errors="replace").splitlines():
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(entry, dict) and isinstance(entry.get("iteration"), int) \
+                and entry["iteration"] <= iteration and (not kept or entry["iteration"] > kept[-1][0]):
+            kept.append((entry["iteration"], line))
+    write_text_atomic(path, "".join(line + "\n" for _, line in kept))
 
 
 class Trainer:
@@ -192,27 +221,35 @@ class Trainer:
     def fit(self, on_step: Callable[[StepStats], None] | None = None) -> None:
         """Train to config.train.iterations; Ctrl-C saves a checkpoint and re-raises."""
         self.write_run_files()
+        trim_log(self.run_dir / LOG_FILE, self.iteration)
         log = open(self.run_dir / LOG_FILE, "a", buffering=1)  # line-buffered: a crash keeps the log
+        train = self.config.train
+        last_save, saved_at = time.monotonic(), self.iteration
         try:
-            while self.iteration < self.config.train.iterations:
+            while self.iteration < train.iterations:
                 stats = self.step()
                 if on_step:
                     on_step(stats)
-                if stats.iteration % LOG_EVERY == 0 or stats.iteration == self.config.train.iterations:
+                if stats.iteration % LOG_EVERY == 0 or stats.iteration == train.iterations:
                     log.write(json.dumps(asdict(stats)) + "\n")
-                if stats.iteration % self.config.train.checkpoint_every == 0:
+                if (stats.iteration % train.checkpoint_every == 0
+                        or time.monotonic() - last_save >= train.checkpoint_seconds):
                     self.save()
+                    last_save, saved_at = time.monotonic(), self.iteration
         except KeyboardInterrupt:
             self.save()
             raise
         finally:
             log.close()
-        self.save()
+        if saved_at != self.iteration or not (self.run_dir / CHECKPOINT).is_file():
+            self.save()
 
     def write_run_files(self) -> None:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         write_text_atomic(self.run_dir / CONFIG_FILE, json.dumps(to_dict(self.config), indent=2) + "\n")
         write_text_atomic(self.run_dir / SCENE_FILE, str(self.scene.root.resolve()) + "\n")
+        write_text_atomic(self.run_dir / SCENE_ID_FILE,
+                          json.dumps(scene_identity(self.scene), indent=2) + "\n")
 
     # ---- checkpoints ----
     def state_dict(self) -> dict:
@@ -236,9 +273,11 @@ class Trainer:
         save_atomic(self.state_dict(), path)
         return path
 
-    def load(self, path: Path) -> None:
-        """Restore a checkpoint of this run (model, components, optimiser, strategy, sampling)."""
-        state = load_checkpoint(path)
+    def load(self, path: Path) -> DataError | None:
+        """Restore a checkpoint of this run (model, components, optimiser, strategy, sampling):
+        the one at `path`, or the one kept before it when `path` is damaged, in which case the
+        error about `path` is returned."""
+        state, path, damaged = load_latest_or_previous(path)
         self.model = model_from_state(self.config, state, path)
         self.scene_extent = float(state["scene_extent"])
         self.optimizer, self.schedules = self._build_optimizer()
@@ -250,3 +289,4 @@ class Trainer:
         self.iteration = int(state["iteration"])
         self.elapsed = float(state["elapsed_seconds"])
         self.peak_rss_mb = float(state["peak_rss_mb"])
+        return damaged
