@@ -8,7 +8,8 @@ decoded with OpenCV (FFmpeg backend: mp4, avi, mov, mkv, ...).
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator, Sequence
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from fnmatch import fnmatchcase
 from pathlib import Path
 
@@ -16,7 +17,7 @@ import cv2
 import numpy as np
 
 from surgsplat.data.layout import IMAGE_SUFFIXES
-from surgsplat.data.scene import read_image
+from surgsplat.data.scene import native_stderr_to, read_image
 from surgsplat.errors import DataError
 
 _DIGITS = re.compile(r"(\d+)")
@@ -94,7 +95,7 @@ class FrameSource:
                     self._grab(capture, position)
                     position += 1
                 self._grab(capture, position)
-                ok, bgr = capture.retrieve()
+                ok, bgr = self._named(capture.retrieve)
                 if not ok:
                     raise DataError(self.path, f"cannot decode frame {position}")
                 position += 1
@@ -102,15 +103,25 @@ class FrameSource:
         finally:
             capture.release()
 
+    def _named(self, call: Callable, *args):
+        """call(*args), with what the video decoder (FFmpeg inside OpenCV) prints passed on
+        as a warning that names the video file."""
+        printed: list[str] = []
+        with native_stderr_to(printed):
+            result = call(*args)
+        if printed:
+            warnings.warn(f"{self.path}: {' '.join(printed)}", stacklevel=3)
+        return result
+
     def _open(self) -> cv2.VideoCapture:
-        capture = cv2.VideoCapture(str(self.path))
+        capture = self._named(cv2.VideoCapture, str(self.path))
         if not capture.isOpened():
             capture.release()
             raise DataError(self.path, "cannot be opened as a video (unknown format or corrupt)")
         return capture
 
     def _grab(self, capture: cv2.VideoCapture, position: int) -> None:
-        if not capture.grab():
+        if not self._named(capture.grab):
             raise DataError(self.path, f"ended after {position} frames although its header "
                                        f"says {self.count}; import fewer frames with --end "
                                        f"{position}")
@@ -121,7 +132,7 @@ class FrameSource:
             count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
             if count <= 0:  # no usable header: count by decoding
                 count = 0
-                while capture.grab():
+                while self._named(capture.grab):
                     count += 1
         finally:
             capture.release()

@@ -56,3 +56,24 @@ def test_bad_sources_name_the_file(tmp_path: Path):
         with pytest.raises(DataError, match=problem) as err:
             FrameSource(tmp_path / name)
         assert err.value.path == tmp_path / name
+
+
+def test_a_cut_video_is_named_in_every_message(video, tmp_path, capfd):
+    """A video cut short: the import stops or warns, and whatever the decoder prints reaches
+    the user only with the video's name."""
+    import warnings
+
+    cut = tmp_path / "cut.avi"
+    data = video.read_bytes()
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        try:
+            source = FrameSource(cut)
+            frames = list(source.read(list(range(source.count))))
+        except DataError as err:
+            assert str(cut) in str(err)
+        else:
+            assert 0 < len(frames) < len(endoscope_frames())
+    assert all(str(cut) in str(w.message) for w in seen)
+    assert capfd.readouterr().err == ""  # nothing the decoder printed went out unnamed
