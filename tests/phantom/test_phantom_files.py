@@ -211,3 +211,17 @@ def test_invalid_requests_name_the_valid_values(tmp_path: Path):
     (tmp_path / "d" / "keep.txt").write_text("x")
     with pytest.raises(SurgsplatError, match="not an empty folder"):
         generate_phantom(PhantomConfig(num_frames=1), tmp_path / "d")
+
+
+def test_a_stopped_generation_leaves_nothing_half_written(tmp_path):
+    from surgsplat.data.phantom import PhantomConfig, generate_phantom
+
+    def stop(done, total):
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        generate_phantom(PhantomConfig(preset="small"), tmp_path / "ph", progress=stop)
+    assert list(tmp_path.iterdir()) == []  # neither the phantom nor its partial folder
+    root = generate_phantom(PhantomConfig(preset="small", num_frames=4), tmp_path / "ph")
+    assert (root / "poses_bounds.npy").is_file() and list(tmp_path.iterdir()) == [root]

@@ -20,6 +20,8 @@ static camera every pose is the identity and world = camera space.
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -113,9 +115,26 @@ def check_phantom_request(config: PhantomConfig, out_dir: Path) -> tuple[Phantom
 def generate_phantom(config: PhantomConfig, out_dir: Path,
                      progress: Callable[[int, int], None] | None = None) -> Path:
     """Render the phantom `config` into the new or empty folder `out_dir` and return it;
-    `progress(done, total)` is called after each frame."""
+    `progress(done, total)` is called after each frame. The files are written into a hidden
+    sibling folder that is renamed to `out_dir` only when complete, so a stopped generation
+    never leaves a half-written phantom behind."""
     preset, num_frames = check_phantom_request(config, out_dir)
-    out_dir = Path(out_dir)
+    final = Path(out_dir)
+    partial = final.with_name(f".{final.name}.partial-{os.getpid()}")
+    shutil.rmtree(partial, ignore_errors=True)
+    try:
+        _write_phantom(config, preset, num_frames, partial, progress)
+        if final.exists():
+            final.rmdir()  # an empty folder (check_phantom_request refused any other)
+        os.replace(partial, final)
+    finally:
+        shutil.rmtree(partial, ignore_errors=True)
+    return final
+
+
+def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int, out_dir: Path,
+                   progress: Callable[[int, int], None] | None) -> None:
+    """Render every frame and its ground truth into `out_dir`."""
 
     scene = PhantomScene(preset.width, preset.height, preset.focal, num_frames, config.motion,
                          config.seed, config.camera)
@@ -145,7 +164,7 @@ def generate_phantom(config: PhantomConfig, out_dir: Path,
             progress(index + 1, num_frames)
     (out_dir / EXPOSURE_FILE).write_text(json.dumps(exposures) + "\n")
     np.save(out_dir / CAMERA_POSES_FILE, np.stack(poses))
-    return writer.finish()
+    writer.finish()
 
 
 def _write_rgb(path: Path, image: np.ndarray) -> None:
