@@ -65,3 +65,39 @@ def test_sigterm_checkpoints_and_stops_cleanly(small_phantom, tmp_path, cli, fau
     assert load_checkpoint(run / CHECKPOINT)["iteration"] == stopped + 12
     logged = faults.logged_iterations(run)
     assert faults.strictly_increasing(logged) and logged[-1] == stopped + 12, logged
+
+
+def lock_is_held(path) -> bool:
+    """Whether another process holds the run folder's lock file."""
+    import fcntl
+
+    if not path.is_file():
+        return False
+    with open(path, "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        fcntl.flock(handle, fcntl.LOCK_UN)
+        return False
+
+
+def test_sigterm_during_render_is_one_line_and_keeps_the_old_videos(small_phantom, tmp_path, cli,
+                                                                    faults):
+    run = tmp_path / "run"
+    trained = cli("train", "--data", str(small_phantom), "--out", str(run), "--iters", "5",
+                  *faults.TRAIN_FAST)
+    assert trained.returncode == 0, trained.stderr
+    assert cli("render", str(run), "--fps", "5").returncode == 0
+    before = (run / "videos" / "rgb.mp4").read_bytes()
+    process = faults.start("render", str(run), "--fps", "5")
+    faults.wait_for(lambda: lock_is_held(run / ".lock") or process.poll() is not None,
+                    what="the render to take its run folder")
+    process.send_signal(signal.SIGTERM)
+    stdout, stderr = process.communicate(timeout=120)
+    if process.returncode == 0:
+        pytest.skip("the render finished before the signal arrived")
+    line = faults.one_error_line(subprocess.CompletedProcess(process.args, process.returncode,
+                                                             stdout, stderr))
+    assert "interrupted" in line
+    assert (run / "videos" / "rgb.mp4").read_bytes() == before  # written atomically or not at all
