@@ -46,6 +46,20 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300)
 
 
+def one_error_line(result: subprocess.CompletedProcess) -> str:
+    """The single `error: ...` line a failed command printed (exit status 2, no traceback)."""
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    assert len(lines) == 1 and lines[0].startswith("error:"), result.stderr
+    return lines[0]
+
+
+@pytest.fixture(name="one_error_line")
+def one_error_line_fixture():
+    """one_error_line(result): the one error line of a failed command, checked."""
+    return one_error_line
+
+
 @pytest.fixture
 def cli():
     """cli(*args) runs `surgsplat *args` as a user does (a subprocess) and returns the

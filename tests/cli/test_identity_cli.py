@@ -11,14 +11,7 @@ import numpy as np
 import torch
 
 
-def one_error_line(result) -> str:
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
-    assert len(lines) == 1 and lines[0].startswith("error:"), result.stderr
-    return lines[0]
-
-
-def test_results_against_the_wrong_scene(small_phantom, tmp_path, cli):
+def test_results_against_the_wrong_scene(small_phantom, tmp_path, cli, one_error_line):
     scene = shutil.copytree(small_phantom, tmp_path / "scene")
     run = tmp_path / "run"
     trained = cli("train", "--data", str(scene), "--out", str(run), "--iters", "3",
@@ -54,7 +47,8 @@ def test_results_against_the_wrong_scene(small_phantom, tmp_path, cli):
     assert "15 frames" in one_error_line(cli("export", str(run), "--ply", "--data", str(other)))
 
 
-def test_resume_with_another_method_or_fewer_iterations(small_phantom, tmp_path, cli):
+def test_resume_with_another_method_or_fewer_iterations(small_phantom, tmp_path, cli,
+                                                       one_error_line):
     run = tmp_path / "run"
     assert cli("train", "--data", str(small_phantom), "--out", str(run), "--iters", "3",
                "--set", "init.max_points=1500").returncode == 0
@@ -67,7 +61,7 @@ def test_resume_with_another_method_or_fewer_iterations(small_phantom, tmp_path,
         assert "holds a 'endogaussian' run, not 'deform3dgs'" in one_error_line(cli(*args))
 
 
-def test_demo_never_silently_reuses_another_run(small_phantom, tmp_path, cli):
+def test_demo_never_silently_reuses_another_run(small_phantom, tmp_path, cli, one_error_line):
     out = tmp_path / "demo"
     shutil.copytree(small_phantom, out / "phantom")
     assert cli("train", "--data", str(out / "phantom"), "--out", str(out / "run"), "--iters",
@@ -77,7 +71,7 @@ def test_demo_never_silently_reuses_another_run(small_phantom, tmp_path, cli):
     assert "holds a demo run of deform3dgs for 3 iterations, not endogaussian for 5" in line
 
 
-def test_edge_values_are_one_line(small_phantom, tmp_path, cli):
+def test_edge_values_are_one_line(small_phantom, tmp_path, cli, one_error_line):
     for fps in ("-5", "0", "nan", "inf"):
         assert "--fps must be a number in (0, 1000]" in one_error_line(
             cli("render", str(tmp_path), "--fps", fps))

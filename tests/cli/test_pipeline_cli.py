@@ -4,14 +4,7 @@ meets on the way (existing run without --resume, resume without a checkpoint, un
 import json
 
 
-def one_error_line(result) -> str:
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
-    assert len(lines) == 1 and lines[0].startswith("error:"), result.stderr
-    return lines[0]
-
-
-def test_train_eval_render(small_phantom, tmp_path, cli):
+def test_train_eval_render(small_phantom, tmp_path, cli, one_error_line):
     run = tmp_path / "run"
     trained = cli("train", "--method", "deform3dgs", "--data", str(small_phantom), "--out", str(run),
                   "--iters", "6")
@@ -34,7 +27,7 @@ def test_train_eval_render(small_phantom, tmp_path, cli):
         assert (run / "videos" / name).stat().st_size > 1000
 
 
-def test_user_mistakes_are_one_line(small_phantom, tmp_path, cli):
+def test_user_mistakes_are_one_line(small_phantom, tmp_path, cli, one_error_line):
     assert "nothing to resume" in one_error_line(cli("train", "--out", str(tmp_path / "x"),
                                                      "--resume"))
     assert "unknown method" in one_error_line(
@@ -69,7 +62,7 @@ def test_set_and_config_reproduce_a_run(small_phantom, tmp_path, cli):
     assert [e["terms"] for e in log] == [e["terms"] for e in log_again]
 
 
-def test_bad_settings_are_one_line(small_phantom, tmp_path, cli):
+def test_bad_settings_are_one_line(small_phantom, tmp_path, cli, one_error_line):
     out = str(tmp_path / "z")
     assert "--set.train.iterations: expected an integer" in one_error_line(
         cli("train", "--data", str(small_phantom), "--out", out, "--set", "train.iterations=x"))

@@ -64,16 +64,8 @@ def strictly_increasing(values: list[int]) -> bool:
     return all(a < b for a, b in zip(values, values[1:]))
 
 
-def one_error_line(result) -> str:
-    """The single `error: ...` line of a command that failed cleanly (exit 2, no traceback)."""
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
-    assert len(lines) == 1 and lines[0].startswith("error:"), result.stderr
-    return lines[0]
-
-
 @pytest.fixture
-def faults():
+def faults(one_error_line):
     """The helpers of this folder, as attributes; processes it started that are still running
     at the end of the test are killed."""
     started: list[subprocess.Popen] = []
