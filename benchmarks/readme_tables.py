@@ -18,6 +18,11 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 
 
+def cell(row: dict, key: str, spec: str) -> str:
+    """row[key] formatted with `spec`, or empty when the row lacks it."""
+    return format(row[key], spec) if row.get(key) is not None else ""
+
+
 def render_table(report: dict) -> str:
     """Markdown for one bench_render report: a line naming the machine, then one row per ISA
     variant and case."""
@@ -33,15 +38,13 @@ def render_table(report: dict) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in report["rows"]:
-        def cell(key: str, spec: str) -> str:
-            return format(row[key], spec) if key in row else ""
-
         lines.append(
             f"| {row['isa']} | {row['gaussians'] // 1000}k | {row['channels']} "
-            f"| {cell('fwd_ms', '.1f')} | {cell('fps', '.1f')} | {cell('fwdbwd_ms', '.1f')} "
-            f"| {cell('step_ms', '.0f')} | {cell('evals_per_s', '.2e')} "
-            f"| {cell('probe_evals_per_s', '.2e')} | {cell('efficiency_fwd', '.2f')} "
-            f"| {cell('efficiency_fwdbwd', '.2f')} |")
+            f"| {cell(row, 'fwd_ms', '.1f')} | {cell(row, 'fps', '.1f')} "
+            f"| {cell(row, 'fwdbwd_ms', '.1f')} "
+            f"| {cell(row, 'step_ms', '.0f')} | {cell(row, 'evals_per_s', '.2e')} "
+            f"| {cell(row, 'probe_evals_per_s', '.2e')} | {cell(row, 'efficiency_fwd', '.2f')} "
+            f"| {cell(row, 'efficiency_fwdbwd', '.2f')} |")
     return "\n".join(lines)
 
 
@@ -80,17 +83,15 @@ def methods_table(report: dict) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in report["rows"]:
-        def cell(key: str, spec: str) -> str:
-            return format(row[key], spec) if row.get(key) is not None else ""
-
         lines.append(
-            f"| {row['case']} | {row['iterations']} | {cell('psnr_tissue', '.2f')} "
-            f"| {cell('ssim', '.4f')} | {cell('depth_rmse_mm', '.3f')} "
-            f"| {cell('normal_error_deg_median', '.2f')} / {cell('normal_error_deg_mean', '.2f')} "
-            f"| {cell('chamfer_mm', '.3f')} | {cell('p2s_median_mm', '.3f')} "
-            f"| {cell('train_seconds', '.0f')} ({cell('train_time_ratio', '.2f')}) "
-            f"| {cell('wall_seconds', '.0f')} | {cell('num_gaussians', 'd')} "
-            f"| {cell('peak_rss_mb', '.0f')} |")
+            f"| {row['case']} | {row['iterations']} | {cell(row, 'psnr_tissue', '.2f')} "
+            f"| {cell(row, 'ssim', '.4f')} | {cell(row, 'depth_rmse_mm', '.3f')} "
+            f"| {cell(row, 'normal_error_deg_median', '.2f')} / "
+            f"{cell(row, 'normal_error_deg_mean', '.2f')} "
+            f"| {cell(row, 'chamfer_mm', '.3f')} | {cell(row, 'p2s_median_mm', '.3f')} "
+            f"| {cell(row, 'train_seconds', '.0f')} ({cell(row, 'train_time_ratio', '.2f')}) "
+            f"| {cell(row, 'wall_seconds', '.0f')} | {cell(row, 'num_gaussians', 'd')} "
+            f"| {cell(row, 'peak_rss_mb', '.0f')} |")
     return "\n".join(lines)
 
 
