@@ -5,7 +5,9 @@ is over tissue pixels with valid depth; on a phantom, geometry is measured again
 ground-truth tissue mesh of each test frame (gt/meshes/<frame>.ply, world frame), using the
 reconstructed surface: the rendered depth back-projected over tissue pixels with the frame's
 camera into the world frame; and normals against the ground-truth camera-space normals
-(gt/normals/<frame>.npy).
+(gt/normals/<frame>.npy). What the tool hid is scored where the phantom has it: over the tool
+pixels (inside the field of view) of each test frame, the render against the tissue-only image
+(gt/tissue_images) and depth (gt/tissue_depth).
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ import torch
 
 from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.layout import frame_stem
-from surgsplat.data.scene import Camera, read_npy
+from surgsplat.data.phantom.generate import TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
+from surgsplat.data.scene import Camera, Frame, read_image, read_npy
 from surgsplat.eval.geometry_metrics import depth_rmse, geometry_metrics
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
@@ -75,6 +78,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
             valid = frame.tissue & (frame.depth > 0)
             if valid.any():
                 row["depth_rmse"] = depth_rmse(out.depth, frame.depth, frame.tissue)
+        row.update(occluded_row(out.rgb.clamp(0, 1), out.depth, frame, scene.root))
         gt_mesh = mesh_path(scene.root, frame.index)
         if options.geometry and gt_mesh.is_file():
             row.update(frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
@@ -97,10 +101,11 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         metrics["normal_error_deg_mean"] = float(pooled.mean())
         metrics["normal_error_deg_median"] = float(pooled.median())
         metrics["normal_source"] = normal_source
-    if "depth_rmse" in metrics:
-        unit = scene.depth_unit
-        metrics[f"depth_rmse_{unit}" if unit == "mm" else "depth_rmse"] = metrics.pop("depth_rmse")
-        metrics["depth_unit"] = unit
+    unit = scene.depth_unit
+    for key in ("depth_rmse", "depth_rmse_occluded"):
+        if key in metrics:
+            metrics[f"{key}_{unit}" if unit == "mm" else key] = metrics.pop(key)
+            metrics["depth_unit"] = unit
     if lpips_model is None:
         metrics["lpips"] = None
         metrics["lpips_note"] = lpips_reason
@@ -114,6 +119,9 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         "ssim": "as ssim_zeroed: tool pixels zeroed, SSIM map averaged over all pixels",
         "lpips": "AlexNet LPIPS v0.1, inputs scaled to [-1, 1], tool pixels zeroed",
         "depth_rmse": "over tissue pixels with valid depth",
+        "psnr_occluded": "render vs gt/tissue_images over the tool pixels inside the field of "
+                         "view of each test frame (what the tool hid), frames with tool pixels",
+        "depth_rmse_occluded": "render vs gt/tissue_depth over the same pixels",
         "geometry": "rendered depth back-projected over tissue pixels with the frame's camera "
                     "into the world frame vs gt tissue mesh",
         "normal_error_deg": "angle between rendered (or rendered-depth) and gt normals, "
@@ -132,6 +140,25 @@ def image_row(pred: torch.Tensor, gt: torch.Tensor, tissue: torch.Tensor,
            "ssim_tissue": ssim_tissue(pred, gt, tissue)}
     if lpips_model is not None:
         row["lpips"] = lpips_distance(lpips_model, pred, gt, tissue)
+    return row
+
+
+def occluded_row(rgb: torch.Tensor, depth: torch.Tensor, frame: Frame,
+                 scene_root: Path) -> dict[str, float]:
+    """psnr_occluded and depth_rmse_occluded of one frame: the render rgb [H, W, 3] and depth
+    [H, W] over the frame's tool pixels inside the FOV, against the tissue the tool hid. Empty
+    when the scene has no gt/tissue_images for the frame or the frame shows no tool."""
+    image_path = scene_root / TISSUE_IMAGES_DIR / f"{frame_stem(frame.index)}.png"
+    occluded = frame.tool & frame.fov
+    if not image_path.is_file() or not occluded.any():
+        return {}
+    truth = torch.from_numpy(read_image(image_path)).float() / 255.0
+    row = {"psnr_occluded": psnr_tissue(rgb, truth, occluded)}
+    depth_path = scene_root / TISSUE_DEPTH_DIR / f"{frame_stem(frame.index)}.npy"
+    if depth_path.is_file():
+        truth_depth = torch.from_numpy(read_npy(depth_path))
+        if (occluded & (truth_depth > 0)).any():
+            row["depth_rmse_occluded"] = depth_rmse(depth, truth_depth, occluded)
     return row
 
 

@@ -12,7 +12,11 @@ same way and never name one. A component declares:
 - the per-Gaussian channels it adds to a render (`render_channels`) and what it derives from the
   rendered maps (`finish_render`: e.g. an unbiased depth, an exposure gain);
 - its named loss terms (`loss_names`, `losses`), computed from a `RenderContext`; their weights
-  come from the method config (`MethodConfig.losses`), never from the component.
+  come from the method config (`MethodConfig.losses`), never from the component;
+- what densification must know of it: a factor on every Gaussian's opacity that does not depend
+  on time (`opacity_factor`, e.g. an SDF-derived opacity), so that pruning, cloning and opacity
+  resets act on the opacity that is rendered; and a weight on each Gaussian's screen-space
+  gradient of a step (`densify_weights`, e.g. to keep occluded tissue growing).
 
 Every hook has a neutral default, so a component implements only what it contributes.
 A config subclass registers itself under its `kind` (the key saved in config.json), so a run's
@@ -21,6 +25,7 @@ config can be rebuilt from the file alone, including components defined outside 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
@@ -60,6 +65,7 @@ class SetupContext:
     scene: SceneInfo
     points: Tensor  # [M, 3] initial Gaussian means (world frame, scene units)
     scene_extent: float  # largest distance of an initial point from their centroid
+    frames: Sequence[Frame]  # the training frames (images, depth, tool and FOV masks, cameras)
 
 
 @dataclass
@@ -159,3 +165,14 @@ class Component(nn.Module):
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         """Unweighted scalar loss terms, for the names in `active` (those with a weight now)."""
         return {}
+
+    def opacity_factor(self, gaussians: GaussianModel) -> Tensor | None:
+        """[N] factor in (0, 1] by which this component's `transform` multiplies every canonical
+        Gaussian's opacity at all times, or None. Densification prunes, clones and resets the
+        product sigmoid(opacity_logits) * factor, the opacity that is rendered."""
+        return None
+
+    def densify_weights(self, context: RenderContext) -> Tensor | None:
+        """[N] non-negative weight of each Gaussian's screen-space gradient in this step's
+        densification statistics (0 = this step never makes it grow), or None for 1."""
+        return None

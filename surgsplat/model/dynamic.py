@@ -83,6 +83,18 @@ class SplatModel(nn.Module):
                 terms.update(component.losses(context, frozenset(wanted)))
         return terms
 
+    @torch.no_grad()
+    def opacity_factor(self) -> Tensor | None:
+        """[N] product of the components' time-independent opacity factors, or None."""
+        return _product(component.opacity_factor(self.gaussians)
+                        for component in self.components.values())
+
+    @torch.no_grad()
+    def densify_weights(self, context: RenderContext) -> Tensor | None:
+        """[N] product of the components' densification weights for this step, or None."""
+        return _product(component.densify_weights(context)
+                        for component in self.components.values())
+
     def attribute_lrs(self) -> dict[str, float]:
         """Learning rates of the components' per-Gaussian attributes, by attribute name."""
         lrs: dict[str, float] = {}
@@ -94,6 +106,15 @@ class SplatModel(nn.Module):
         """Optimiser groups of every component's own parameters."""
         return [group for component in self.components.values()
                 for group in component.param_groups()]
+
+
+def _product(factors) -> Tensor | None:
+    """The product of the tensors among `factors` that are not None; None if all are."""
+    result = None
+    for factor in factors:
+        if factor is not None:
+            result = factor if result is None else result * factor
+    return result
 
 
 @torch.no_grad()

@@ -8,6 +8,7 @@ gradients, splits large ones, prunes transparent or oversized ones, and resets o
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import Tensor
@@ -16,6 +17,11 @@ from surgsplat.methods.settings import DensifyConfig
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.per_gaussian import MOMENT_KEYS, append_gaussians, keep_gaussians
+
+
+def no_factor() -> None:
+    """The opacity factor of a method none of whose components scales opacity."""
+    return None
 
 
 class DensifyStrategy:
@@ -47,8 +53,11 @@ class DensifyStrategy:
 
     def step_post_backward(self, iteration: int, model: GaussianModel,
                            optimizer: torch.optim.Optimizer, screen_grad: Tensor,
-                           radii: Tensor) -> None:
-        """screen_grad [N] NDC-scaled screen-space gradient norm of this step; radii [N] px."""
+                           radii: Tensor, opacity_factor: Callable[[], Tensor | None] = no_factor
+                           ) -> None:
+        """screen_grad [N] NDC-scaled screen-space gradient norm of this step (already weighted);
+        radii [N] px; opacity_factor() gives the current [N] factor on sigmoid(opacity_logits)
+        that rendering applies (None = 1); it is asked only when densifying or resetting."""
         config = self.config
         if iteration > config.stop_iter:
             return
@@ -58,8 +67,8 @@ class DensifyStrategy:
         self.visible_count[visible] += 1
         self.max_radius = torch.maximum(self.max_radius, radii.float())
         if iteration >= config.start_iter and iteration % config.every == 0:
-            self._densify(model, optimizer)
-            self._prune(model, optimizer)
+            self._densify(model, optimizer, opacity_factor())
+            self._prune(model, optimizer, opacity_factor())
             self._ensure_size(model.num_gaussians)
             self.grad_sum.zero_()
             self.visible_count.zero_()
@@ -68,7 +77,8 @@ class DensifyStrategy:
             self._reset_opacity(model, optimizer)
 
     @torch.no_grad()
-    def _densify(self, model: GaussianModel, optimizer: torch.optim.Optimizer) -> None:
+    def _densify(self, model: GaussianModel, optimizer: torch.optim.Optimizer,
+                 factor: Tensor | None) -> None:
         config = self.config
         room = self.max_gaussians - model.num_gaussians
         if room <= 0:
@@ -81,7 +91,7 @@ class DensifyStrategy:
         clone_idx = _strongest(clone, mean_grad, room)
         split_idx = _strongest(split, mean_grad, max(room - clone_idx.numel(), 0) // 2)
         if clone_idx.numel():
-            self._share_opacity(model, clone_idx)
+            self._share_opacity(model, clone_idx, None if factor is None else factor[clone_idx])
         rows = {name: value[clone_idx] for name, value in model.params.items()}
         split_rows = self._split_rows(model, split_idx)
         new_rows = {name: torch.cat([rows[name], split_rows[name]]) for name in rows}
@@ -95,14 +105,16 @@ class DensifyStrategy:
             keep_gaussians(model, optimizer, keep)
 
     @staticmethod
-    def _share_opacity(model: GaussianModel, index: Tensor) -> None:
-        """Give the Gaussians about to be cloned the opacity o' = 1 - sqrt(1 - o), so that the
-        original and its copy composite to the original opacity o (as 3DGS-MCMC does): cloning
-        then adds capacity without changing the image, which matters on short CPU schedules."""
+    def _share_opacity(model: GaussianModel, index: Tensor, factor: Tensor | None) -> None:
+        """Give the Gaussians about to be cloned the rendered opacity o' = 1 - sqrt(1 - o), so
+        that the original and its copy composite to the original opacity o (as 3DGS-MCMC does):
+        cloning then adds capacity without changing the image, which matters on short CPU
+        schedules. factor [K]: the rendered opacity is sigmoid(logit) * factor."""
         logits = model.params["opacity_logits"]
-        opacity = torch.sigmoid(logits[index])
-        shared = (1.0 - torch.sqrt(1.0 - opacity)).clamp(1e-6, 1.0 - 1e-6)
-        logits[index] = torch.logit(shared)
+        factor = torch.ones(index.numel()) if factor is None else factor.clamp_min(1e-6)
+        opacity = torch.sigmoid(logits[index]) * factor
+        shared = (1.0 - torch.sqrt(1.0 - opacity)) / factor
+        logits[index] = torch.logit(shared.clamp(1e-6, 1.0 - 1e-6))
 
     def _split_rows(self, model: GaussianModel, index: Tensor) -> dict[str, Tensor]:
         """Two children per parent, positioned by sampling the parent's Gaussian."""
@@ -118,9 +130,12 @@ class DensifyStrategy:
         return children
 
     @torch.no_grad()
-    def _prune(self, model: GaussianModel, optimizer: torch.optim.Optimizer) -> None:
+    def _prune(self, model: GaussianModel, optimizer: torch.optim.Optimizer,
+               factor: Tensor | None) -> None:
         config = self.config
         opacity = torch.sigmoid(model.params["opacity_logits"])
+        if factor is not None:
+            opacity = opacity * factor
         prune = opacity < config.min_opacity
         max_scale = model.params["log_scales"].exp().max(dim=1).values
         prune |= max_scale > config.max_world_scale * self.scene_extent
@@ -133,6 +148,8 @@ class DensifyStrategy:
 
     @torch.no_grad()
     def _reset_opacity(self, model: GaussianModel, optimizer: torch.optim.Optimizer) -> None:
+        """Clamp sigmoid(opacity_logits) to the reset value: with factors in (0, 1] the rendered
+        opacity is then at most that value too."""
         ceiling = math.log(self.config.reset_opacity / (1 - self.config.reset_opacity))
         logits = model.params["opacity_logits"]
         logits.clamp_(max=ceiling)

@@ -125,7 +125,8 @@ class Trainer:
         centre = points.means.mean(dim=0)
         self.scene_extent = float((points.means - centre).norm(dim=1).max())
         components = build_components(self.config)
-        context = SetupContext(scene=info, points=points.means, scene_extent=self.scene_extent)
+        context = SetupContext(scene=info, points=points.means, scene_extent=self.scene_extent,
+                               frames=scene.train_frames)
         attributes: dict[str, Tensor] = {}
         for name, component in components.items():
             component.setup(context)
@@ -207,9 +208,13 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         screen_grad = absgrad * (0.5 * max(camera.width, camera.height))
+        densify_weights = self.model.densify_weights(context)
+        if densify_weights is not None:
+            screen_grad = screen_grad * densify_weights
         self.optimizer.step()
         self.strategy.step_post_backward(self.iteration, self.model.gaussians, self.optimizer,
-                                         screen_grad, output.projection.radii.detach())
+                                         screen_grad, output.projection.radii.detach(),
+                                         self.model.opacity_factor)
         self.elapsed += time.perf_counter() - started
         with torch.no_grad():
             mse = float(((output.rgb - frame.image)[frame.tissue] ** 2).mean())

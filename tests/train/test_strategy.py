@@ -68,3 +68,18 @@ def test_opacity_reset_caps_opacity():
         strategy.step_post_backward(iteration, model, optimizer, torch.zeros(2), torch.ones(2))
     opacity = torch.sigmoid(model.params["opacity_logits"])
     assert torch.allclose(opacity, torch.tensor([0.01, 0.005]), atol=1e-6)
+
+
+def test_prune_and_clone_act_on_the_rendered_opacity_with_a_factor():
+    # Gaussian 0 has logit opacity 0.9 but a component factor of 0.001: rendered 0.0009 -> pruned.
+    # Gaussian 1 (factor 0.5, rendered 0.45) is cloned: the pair composites to 0.45 rendered.
+    model, optimizer = setup([math.log(0.5), math.log(0.5)], [0.9, 0.9])
+    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100)
+    # the factor of the Gaussians present when asked (a clone is appended with its parent's 0.5)
+    strategy.step_post_backward(
+        1, model, optimizer, torch.tensor([0.0, 1.0]), torch.ones(2),
+        opacity_factor=lambda: torch.tensor([0.001] + [0.5] * (model.num_gaussians - 1)))
+    assert model.num_gaussians == 2  # 0 pruned; 1 and its clone remain
+    rendered = torch.sigmoid(model.params["opacity_logits"]) * 0.5
+    assert torch.allclose(1 - (1 - rendered[0]) * (1 - rendered[1]), torch.tensor(0.45),
+                          atol=1e-5)

@@ -116,3 +116,45 @@ def test_toy_component_trains_checkpoints_resumes_and_loads(small_phantom, tmp_p
     assert isinstance(run.model.components["toy"], ToyComponent)
     torch.testing.assert_close(run.model.gaussians.params[ATTRIBUTE], params[ATTRIBUTE].detach())
     assert toy_error(run.model, scene) == toy_error(straight.model, scene)
+
+
+@dataclass
+class FrozenGrowthConfig(ComponentConfig, kind="toy_frozen_growth"):
+    """Weights every Gaussian's densification gradient by 0 and halves every opacity."""
+
+    def build(self) -> "FrozenGrowthComponent":
+        return FrozenGrowthComponent()
+
+
+class FrozenGrowthComponent(Component):
+    def transform(self, state, gaussians, when):
+        return state.replace(opacities=state.opacities * 0.5)
+
+    def opacity_factor(self, gaussians) -> Tensor:
+        return torch.full((gaussians.num_gaussians,), 0.5)
+
+    def densify_weights(self, context: RenderContext) -> Tensor:
+        return torch.zeros(context.gaussians.num_gaussians)
+
+
+def test_densify_weights_and_opacity_factor_reach_the_strategy(small_phantom, tmp_path):
+    """A component's zero densification weights stop all growth; its opacity factor makes
+    pruning see the halved opacity (min_opacity 0.3 prunes every Gaussian below 0.6 logit
+    opacity, which it would not do on the logits alone)."""
+    scene = load_scene(small_phantom)
+    config = toy_method(10)
+    config.components["frozen"] = FrozenGrowthConfig()
+    config.densify.start_iter, config.densify.every = 5, 5
+    config.densify.grad_threshold = 0.0
+    config.densify.min_opacity = 0.3
+    trainer = Trainer(config, scene, tmp_path / "frozen")
+    with torch.no_grad():
+        trainer.model.gaussians.params["opacity_logits"][::2] = torch.logit(torch.tensor(0.55))
+        trainer.model.gaussians.params["opacity_logits"][1::2] = torch.logit(torch.tensor(0.95))
+    count = trainer.model.gaussians.num_gaussians
+    for _ in range(5):
+        trainer.step()
+    remaining = trainer.model.gaussians.num_gaussians
+    assert remaining < count  # rendered 0.275 < 0.3 pruned; no clone or split added any
+    assert remaining >= count // 2 - 1
+    assert torch.all(torch.sigmoid(trainer.model.gaussians.params["opacity_logits"]) > 0.6)
