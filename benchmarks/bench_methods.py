@@ -1,13 +1,18 @@
-"""Method ablation on the full phantom: each run is `surgsplat train` then `surgsplat eval` in its
-own process (so train seconds, wall time including start-up, and peak RSS are each run's own).
+"""Method ablations on the full phantom, in suites (one per paper): each run is `surgsplat train`
+then `surgsplat eval` in its own process (so train seconds, wall time including start-up, and
+peak RSS are each run's own).
 
-    python benchmarks/bench_methods.py [--json] [--iters N] [--work DIR] [--cases NAME ...]
+    python benchmarks/bench_methods.py --suite NAME [--json] [--iters N] [--work DIR]
+                                       [--cases NAME ...]
 
-Cases (issue 9): deform3dgs; endoplanar without its normal loss; endoplanar; and deform3dgs on
-the moving-camera phantom with known poses. Targets: endoplanar psnr_tissue >= 38 dB, median
-normal error <= 5 deg, depth_rmse_mm no worse than deform3dgs, training time within 15% of
-deform3dgs; the moving-camera run psnr_tissue >= 35 dB. Ratios are against the deform3dgs row of
-the same run. Results go to benchmarks/results/bench_methods-<cpu>.json.
+A suite lists its cases, the metrics it reports and its baseline case; every ratio is against
+that baseline in the same run. Results go to benchmarks/results/bench_methods_<suite>-<cpu>.json
+and become the README region `bench_methods_<suite>` (benchmarks/readme_tables.py).
+
+Suite `endoplanar` (issue 9): deform3dgs; endoplanar without its normal loss; endoplanar; and
+deform3dgs on the moving-camera phantom with known poses. Targets: endoplanar psnr_tissue >= 38
+dB, median normal error <= 5 deg, depth_rmse_mm no worse than deform3dgs, training time within
+15% of deform3dgs; the moving-camera run psnr_tissue >= 35 dB.
 """
 
 from __future__ import annotations
@@ -28,9 +33,9 @@ from bench_render import results_path  # noqa: E402
 from surgsplat.render.native import system_info  # noqa: E402
 
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
-COLUMNS = ("psnr_tissue", "ssim", "depth_rmse_mm", "normal_error_deg_median",
-           "normal_error_deg_mean", "chamfer_mm", "p2s_median_mm", "train_seconds",
-           "wall_seconds", "num_gaussians", "peak_rss_mb")
+RUN_COLUMNS = ("train_seconds", "train_time_ratio", "wall_seconds", "num_gaussians",
+               "peak_rss_mb")
+"""Columns every suite reports after its own metrics."""
 
 
 @dataclass(frozen=True)
@@ -46,12 +51,32 @@ class Case:
 PHANTOMS = {"pulling": ("--preset", "full", "--motion", "pulling"),
             "pulling-moving-camera": ("--preset", "full", "--motion", "pulling",
                                       "--camera", "moving")}
-CASES = (
-    Case("deform3dgs", "deform3dgs", "pulling"),
-    Case("endoplanar-no-normal-loss", "endoplanar", "pulling", ("losses.normal.weight=0",)),
-    Case("endoplanar", "endoplanar", "pulling"),
-    Case("deform3dgs-moving-camera", "deform3dgs", "pulling-moving-camera"),
-)
+
+
+@dataclass(frozen=True)
+class Suite:
+    """The ablation of one paper: its rows, the metrics shown, and the row ratios refer to."""
+
+    cases: tuple[Case, ...]
+    metrics: tuple[str, ...]  # keys of metrics.json shown, in order
+    baseline: str  # name of the case ratios are taken against
+    ratio_metrics: tuple[str, ...] = ()  # metrics also reported as <key>_ratio to the baseline
+
+
+SUITES = {
+    "endoplanar": Suite(
+        cases=(
+            Case("deform3dgs", "deform3dgs", "pulling"),
+            Case("endoplanar-no-normal-loss", "endoplanar", "pulling",
+                 ("losses.normal.weight=0",)),
+            Case("endoplanar", "endoplanar", "pulling"),
+            Case("deform3dgs-moving-camera", "deform3dgs", "pulling-moving-camera"),
+        ),
+        metrics=("psnr_tissue", "ssim", "depth_rmse_mm", "depth_rmse_ratio",
+                 "normal_error_deg_median", "normal_error_deg_mean", "chamfer_mm",
+                 "p2s_median_mm"),
+        baseline="deform3dgs", ratio_metrics=("depth_rmse_mm",)),
+}
 
 
 def surgsplat(*args: str) -> None:
@@ -81,23 +106,25 @@ def run_case(case: Case, work: Path, iterations: int | None) -> dict:
     row = {"case": case.name, "method": case.method, "phantom": case.phantom,
            "settings": list(case.settings), "iterations": metrics["iteration"],
            "wall_seconds": round(wall, 1)}
-    row.update({key: metrics[key] for key in COLUMNS if key in metrics})
+    row.update({key: value for key, value in metrics.items()
+                if isinstance(value, (int, float)) and key not in row})
     return row
 
 
-def add_ratios(rows: list[dict]) -> None:
-    """Train time and depth error of each row as ratios to the deform3dgs row of this run."""
-    base = next((row for row in rows if row["case"] == "deform3dgs"), None)
+def add_ratios(rows: list[dict], suite: Suite) -> None:
+    """Train time and the suite's ratio metrics of each row, as ratios to its baseline row."""
+    base = next((row for row in rows if row["case"] == suite.baseline), None)
     if base is None:
         return
     for row in rows:
         row["train_time_ratio"] = round(row["train_seconds"] / base["train_seconds"], 3)
-        if "depth_rmse_mm" in row and "depth_rmse_mm" in base:
-            row["depth_rmse_ratio"] = round(row["depth_rmse_mm"] / base["depth_rmse_mm"], 3)
+        for key in suite.ratio_metrics:
+            if row.get(key) is not None and base.get(key):
+                row[f"{key.removesuffix('_mm')}_ratio"] = round(row[key] / base[key], 3)
 
 
-def print_table(rows: list[dict]) -> None:
-    keys = ("case",) + COLUMNS + ("train_time_ratio", "depth_rmse_ratio")
+def print_table(rows: list[dict], columns: tuple[str, ...]) -> None:
+    keys = ("case", "iterations") + columns
     print(" | ".join(keys))
     for row in rows:
         print(" | ".join(f"{row[k]:.3f}" if isinstance(row.get(k), float) else str(row.get(k, ""))
@@ -106,32 +133,40 @@ def print_table(rows: list[dict]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " "))
+    parser.add_argument("--suite", required=True, choices=sorted(SUITES))
     parser.add_argument("--json", action="store_true", help="print the rows as JSON lines")
     parser.add_argument("--iters", type=int, default=None, help="override preset iterations")
     parser.add_argument("--work", type=Path,
                         default=Path(tempfile.gettempdir()) / "surgsplat-bench-methods")
-    parser.add_argument("--cases", nargs="+", default=[case.name for case in CASES],
-                        choices=[case.name for case in CASES])
-    parser.add_argument("--out", type=Path, default=None,
-                        help="result file (default benchmarks/results/bench_methods-<cpu>.json)")
+    parser.add_argument("--cases", nargs="+", default=None,
+                        help="run only these cases of the suite (default: all)")
+    parser.add_argument("--out", type=Path, default=None, help="result file (default "
+                        "benchmarks/results/bench_methods_<suite>-<cpu>.json)")
     args = parser.parse_args()
+    suite = SUITES[args.suite]
+    names = [case.name for case in suite.cases]
+    unknown = set(args.cases or ()) - set(names)
+    if unknown:
+        parser.error(f"suite {args.suite} has no case {sorted(unknown)}; it has {names}")
     args.work.mkdir(parents=True, exist_ok=True)
     rows = []
-    for case in CASES:
-        if case.name in args.cases:
+    for case in suite.cases:
+        if args.cases is None or case.name in args.cases:
             rows.append(run_case(case, args.work, args.iters))
             print(json.dumps(rows[-1]) if args.json else f"done: {rows[-1]['case']}", flush=True)
-    add_ratios(rows)
+    add_ratios(rows, suite)
+    columns = suite.metrics + RUN_COLUMNS
     info = system_info()
-    report = {"benchmark": "bench_methods", "cpu": info["cpu"], "system": info,
+    report = {"benchmark": "bench_methods", "suite": args.suite, "columns": list(columns),
+              "cpu": info["cpu"], "system": info,
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "command": " ".join(["python", "benchmarks/bench_methods.py", *sys.argv[1:]]),
               "rows": rows}
-    out = args.out or results_path("bench_methods", info["cpu"])
+    out = args.out or results_path(f"bench_methods_{args.suite}", info["cpu"])
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2) + "\n")
     if not args.json:
-        print_table(rows)
+        print_table(rows, columns)
     print(f"results: {out}")
 
 
