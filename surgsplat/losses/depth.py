@@ -18,21 +18,27 @@ import torch
 from torch import Tensor
 
 from surgsplat.image.depth import valid_depth_pixels
-from surgsplat.model.component import Component, ComponentConfig, RenderContext
+from surgsplat.losses.occlusion import OcclusionImportance
+from surgsplat.model.component import Component, ComponentConfig, RenderContext, SetupContext
 
 
-def _mean_over(errors: Tensor, valid: Tensor) -> Tensor:
-    weights = valid.to(errors.dtype)
-    return (errors * weights).sum() / weights.sum().clamp_min(1.0)
+def _mean_over(errors: Tensor, valid: Tensor, weights: Tensor | None = None) -> Tensor:
+    """Mean of errors [H, W] over the valid pixels, each multiplied by its weight if given."""
+    counted = valid.to(errors.dtype)
+    per_pixel = counted if weights is None else counted * weights
+    return (errors * per_pixel).sum() / counted.sum().clamp_min(1.0)
 
 
-def depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
-    """Mean |pred - gt| (depth units) over masked pixels with gt > 0."""
+def depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,
+             weights: Tensor | None = None) -> Tensor:
+    """Mean |pred - gt| (depth units) over masked pixels with gt > 0; `weights` [H, W] weight
+    each pixel's error (Endo-GSG Eq. 12)."""
     valid = valid_depth_pixels(pred_depth, gt, mask)
-    return _mean_over((pred_depth - gt).abs(), valid)
+    return _mean_over((pred_depth - gt).abs(), valid, weights)
 
 
-def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,
+                     weights: Tensor | None = None) -> Tensor:
     """Mean |1/pred - 1/gt| over masked pixels with gt > 0 and pred > 0, times the median
     measured depth of those pixels: unit-free (about the relative depth error), so that one
     weight suits scenes in millimetres or metres.
@@ -46,7 +52,7 @@ def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     if not valid.any():
         return (pred_depth * 0.0).sum()
     reference = gt[valid].median()
-    return reference * _mean_over((1.0 / safe_pred - 1.0 / safe_gt).abs(), valid)
+    return reference * _mean_over((1.0 / safe_pred - 1.0 / safe_gt).abs(), valid, weights)
 
 
 @dataclass
@@ -55,6 +61,9 @@ class DepthLossConfig(ComponentConfig, kind="depth_loss"):
 
     form: Literal["l1", "inverse_l1"] = "l1"
     """L1 on depth, or L1 on inverse depth (EndoPlanar Eq. 9)."""
+    occlusion_gamma: float = 0.0
+    """gamma of Endo-GSG's occlusion importance map weighting each pixel (Eq. 11-12); 0 = every
+    tissue pixel weighs 1."""
 
     def build(self) -> "DepthLoss":
         return DepthLoss(self)
@@ -67,6 +76,10 @@ class DepthLoss(Component):
     def __init__(self, config: DepthLossConfig):
         super().__init__()
         self.config = config
+        self.importance = OcclusionImportance(config.occlusion_gamma)
+
+    def setup(self, context: SetupContext) -> None:
+        self.importance.observe(context.frames)
 
     def loss_names(self) -> tuple[str, ...]:
         return ("depth",)
@@ -76,4 +89,5 @@ class DepthLoss(Component):
         if frame.depth is None:
             return {"depth": output.depth.sum() * 0.0}
         loss = depth_l1 if self.config.form == "l1" else inverse_depth_l1
-        return {"depth": loss(output.depth, frame.depth, frame.tissue)}
+        weights = self.importance.weights(frame) if self.config.occlusion_gamma > 0 else None
+        return {"depth": loss(output.depth, frame.depth, frame.tissue, weights)}
