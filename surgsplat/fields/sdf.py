@@ -55,11 +55,11 @@ TETRAHEDRON = torch.tensor([[1.0, -1.0, -1.0], [-1.0, -1.0, 1.0], [-1.0, 1.0, -1
 class SDFConfig(ComponentConfig, kind="sdf"):
     """Size, schedule and coupling of the signed distance field."""
 
-    resolutions: tuple[int, ...] = (16, 32, 64, 96)
+    resolutions: tuple[int, ...] = (16, 32, 64)
     """Cells per axis of each dense feature grid over the canonical box."""
-    feature_dim: int = 4
+    feature_dim: int = 2
     """Feature channels of every grid."""
-    mlp_width: int = 64
+    mlp_width: int = 32
     """Width of the MLP's two hidden layers."""
     grid_lr: float = 1e-2
     """Adam learning rate of the feature grids."""
@@ -70,7 +70,7 @@ class SDFConfig(ComponentConfig, kind="sdf"):
     bell_width: float = 0.02
     """Initial 1 / beta as a fraction of the scene extent (a Gaussian this far from the surface
     keeps 4 s (1 - s) = 0.79 of its opacity)."""
-    samples_per_step: int = 8192
+    samples_per_step: int = 2048
     """Gaussians drawn per step for the Eikonal, projection, orientation and SDA losses."""
     box_margin: float = 0.15
     """Margin added on every side of the initial points' bounding box, as a fraction of its size."""
