@@ -98,6 +98,7 @@ class MeshExtractor:
         self.background = background
         self.field = sdf_component(model)
         self._canonical: tuple[np.ndarray, np.ndarray, float] | None = None
+        self._weights: tuple[np.ndarray, np.ndarray] | None = None  # canonical vertices' anchors
 
     @property
     def route(self) -> str:
@@ -130,9 +131,11 @@ class MeshExtractor:
     def _carry(self, vertices: np.ndarray, when: FrameTime) -> np.ndarray:
         """Canonical vertices [V, 3] -> their positions at `when`."""
         canonical = self.model.gaussians.params["means"].detach()
+        if self._weights is None:
+            self._weights = anchor_weights(vertices, canonical.numpy(), self.options.neighbours)
         moved = self.model.state_at(when).means.detach()
-        return carry_points(vertices, canonical.numpy(), (moved - canonical).numpy(),
-                            self.options.neighbours)
+        index, weights = self._weights
+        return vertices + np.einsum("pk,pkc->pc", weights, (moved - canonical).numpy()[index])
 
 
 def marching_cubes(signed_distance: Callable[[Tensor], Tensor], box: Tensor,
@@ -155,16 +158,16 @@ def marching_cubes(signed_distance: Callable[[Tensor], Tensor], box: Tensor,
     return vertices + lo.numpy(), faces.astype(np.int64), cell
 
 
-def carry_points(points: np.ndarray, anchors: np.ndarray, displacement: np.ndarray,
-                 neighbours: int) -> np.ndarray:
-    """points [P, 3] moved by the inverse-distance-weighted displacement [M, 3] of their
-    `neighbours` nearest anchors [M, 3]."""
+def anchor_weights(points: np.ndarray, anchors: np.ndarray,
+                   neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+    """The `neighbours` nearest anchors [M, 3] of each point [P, 3] and their inverse-distance
+    weights: (index [P, k], weights [P, k] summing to 1)."""
     k = min(neighbours, len(anchors))
     distance, index = cKDTree(anchors).query(points, k=k)
     distance, index = distance.reshape(len(points), k), index.reshape(len(points), k)
     weights = 1.0 / np.maximum(distance, 1e-9)
-    weights /= weights.sum(axis=1, keepdims=True)
-    return points + np.einsum("pk,pkc->pc", weights, displacement[index])
+    return index, weights / weights.sum(axis=1, keepdims=True)
+
 
 
 def faces_on_rendered_surface(vertices: np.ndarray, faces: np.ndarray, output: RenderOutput,

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from surgsplat.data.scene import Camera, Frame, load_scene
-from surgsplat.export.mesh import (MeshExtractor, MeshOptions, carry_points, coverage, depth_mesh,
+from surgsplat.export.mesh import (MeshExtractor, MeshOptions, anchor_weights, coverage, depth_mesh,
                                    marching_cubes)
 from surgsplat.methods.registry import method_config
 from surgsplat.model.dynamic import SplatModel
@@ -28,11 +28,11 @@ def test_marching_cubes_of_a_sphere_lies_on_the_sphere():
     assert mesh.area == pytest.approx(4 * np.pi * radius ** 2, rel=0.005)
 
 
-def test_carry_points_follows_the_anchors_displacement():
-    anchors = np.random.default_rng(0).random((50, 3))
-    points = np.random.default_rng(1).random((20, 3))
-    moved = carry_points(points, anchors, np.tile([1.0, 2.0, 3.0], (50, 1)), neighbours=4)
-    np.testing.assert_allclose(moved - points, np.tile([1.0, 2.0, 3.0], (20, 1)), atol=1e-12)
+def test_anchor_weights_pick_the_nearest_anchors_by_inverse_distance():
+    anchors = np.array([[0.0, 0, 0], [1.0, 0, 0], [10.0, 0, 0]])
+    index, weights = anchor_weights(np.array([[0.25, 0, 0]]), anchors, neighbours=2)
+    assert sorted(index[0]) == [0, 1]
+    np.testing.assert_allclose(weights[0][np.argsort(index[0])], [0.75, 0.25], atol=1e-12)
 
 
 def step_frame(width: int = 40, height: int = 30):
