@@ -170,18 +170,26 @@ def main() -> None:
                         help="run only these cases of the suite (default: all)")
     parser.add_argument("--out", type=Path, default=None, help="result file (default "
                         "benchmarks/results/bench_methods_<suite>-<cpu>.json)")
+    parser.add_argument("--collect", type=Path, default=None, metavar="LOG",
+                        help="run nothing: write the report from the rows an interrupted "
+                             "`--json` run printed to LOG (its cases that finished)")
     args = parser.parse_args()
     suite = SUITES[args.suite]
     names = [case.name for case in suite.cases]
     unknown = set(args.cases or ()) - set(names)
     if unknown:
         parser.error(f"suite {args.suite} has no case {sorted(unknown)}; it has {names}")
-    args.work.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for case in suite.cases:
-        if args.cases is None or case.name in args.cases:
-            rows.append(run_case(case, args.work, args.iters))
-            print(json.dumps(rows[-1]) if args.json else f"done: {rows[-1]['case']}", flush=True)
+    if args.collect:
+        rows = [json.loads(line) for line in args.collect.read_text().splitlines()
+                if line.startswith('{"case"')]
+    else:
+        args.work.mkdir(parents=True, exist_ok=True)
+        rows = []
+        for case in suite.cases:
+            if args.cases is None or case.name in args.cases:
+                rows.append(run_case(case, args.work, args.iters))
+                print(json.dumps(rows[-1]) if args.json else f"done: {rows[-1]['case']}",
+                      flush=True)
     add_ratios(rows, suite)
     columns = suite.metrics + RUN_COLUMNS
     info = system_info()
@@ -190,6 +198,11 @@ def main() -> None:
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "command": " ".join(["python", "benchmarks/bench_methods.py", *sys.argv[1:]]),
               "rows": rows}
+    if args.collect:
+        done = {row["case"] for row in rows}
+        report["note"] = ("collected from the rows printed by an interrupted run; cases not "
+                          "finished: " + (", ".join(case.name for case in suite.cases
+                                                    if case.name not in done) or "none"))
     out = args.out or results_path(f"bench_methods_{args.suite}", info["cpu"])
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2) + "\n")
