@@ -72,7 +72,7 @@ class SDFConfig(ComponentConfig, kind="sdf"):
     keeps 4 s (1 - s) = 0.79 of its opacity)."""
     samples_per_step: int = 2048
     """Gaussians drawn per step for the Eikonal, projection, orientation and SDA losses."""
-    eikonal_space_samples: int = 1024
+    eikonal_space_samples: int = 0
     """Points drawn uniformly in the box per step where the Eikonal loss also holds (as IGR and
     NeuS sample it), so the field stays a distance between and away from the Gaussians; 0 =
     only at the Gaussians, as Eq. 13 writes it."""
