@@ -72,10 +72,6 @@ class SDFConfig(ComponentConfig, kind="sdf"):
     keeps 4 s (1 - s) = 0.79 of its opacity)."""
     samples_per_step: int = 2048
     """Gaussians drawn per step for the Eikonal, projection, orientation and SDA losses."""
-    eikonal_space_samples: int = 0
-    """Points drawn uniformly in the box per step where the Eikonal loss also holds (as IGR and
-    NeuS sample it), so the field stays a distance between and away from the Gaussians; 0 =
-    only at the Gaussians, as Eq. 13 writes it."""
     box_margin: float = 0.15
     """Margin added on every side of the initial points' bounding box, as a fraction of its size."""
     gradient_step: float = 0.5
@@ -205,10 +201,6 @@ class SDFField(Component):
         normal = nn.functional.normalize(gradient, dim=1).detach()  # [K, 3]
         terms: dict[str, Tensor] = {}
         if "eikonal" in active:
-            if self.config.eikonal_space_samples > 0:
-                lo, hi = self.box
-                space = lo + torch.rand(self.config.eikonal_space_samples, 3) * (hi - lo)
-                gradient = torch.cat([gradient, self.value_and_gradient(space)[1]])
             terms["eikonal"] = eikonal_loss(gradient)
         if "projection" in active:
             terms["projection"] = projection_loss(means, value, normal)
