@@ -187,7 +187,9 @@ def faces_on_rendered_surface(vertices: np.ndarray, faces: np.ndarray, output: R
 
 def compact(faces: np.ndarray, num_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     """Drop unused vertices: (indices [U] of the vertices kept, faces [F, 3] renumbered)."""
-    used = np.unique(faces)
+    marked = np.zeros(num_vertices, dtype=bool)
+    marked[faces.ravel()] = True
+    used = np.flatnonzero(marked)
     renumber = np.full(num_vertices, -1, dtype=np.int64)
     renumber[used] = np.arange(len(used))
     return used, renumber[faces]
@@ -223,8 +225,8 @@ def depth_mesh(output: RenderOutput, frame: Frame, options: MeshOptions) -> Fram
     flat_valid = valid.ravel()
     faces = faces[flat_valid[faces].all(axis=1)]
     spacing = depth.numpy().ravel() * stride / camera.fx  # grid spacing at each vertex's depth
-    edges = np.stack([np.linalg.norm(world[faces[:, i]] - world[faces[:, (i + 1) % 3]], axis=1)
-                      for i in range(3)], axis=1)
+    corners = world[faces]  # [F, 3, 3]
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)  # [F, 3]
     limit = options.edge_factor * spacing[faces].max(axis=1)
     faces = faces[(edges <= limit[:, None]).all(axis=1)]
     used, faces = compact(faces, len(world))
