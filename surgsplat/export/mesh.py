@@ -149,7 +149,8 @@ def marching_cubes(signed_distance: Callable[[Tensor], Tensor], box: Tensor,
     counts = [max(2, int(np.ceil(float(side) / cell)) + 1) for side in hi - lo]
     axes = [lo[i] + torch.arange(counts[i], dtype=torch.float64) * cell for i in range(3)]
     grid = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3).float()
-    values = torch.cat([signed_distance(part) for part in grid.split(chunk)]).numpy()
+    with torch.no_grad():
+        values = torch.cat([signed_distance(part) for part in grid.split(chunk)]).numpy()
     volume = values.reshape(counts)
     if not (volume.min() < 0 < volume.max()):
         raise SurgsplatError("the signed distance field has no surface inside its box "
