@@ -59,6 +59,9 @@ def import_command(
              "file names for a folder, sorted order for a video).")] = "auto",
     allow_missing_masks: Annotated[bool, typer.Option(
         help="Drop frames that have no mask (default: stop with an error).")] = False,
+    auto_tool_masks: Annotated[bool, typer.Option(
+        help="Find the tools (grey metal, black plastic) in every frame automatically, for "
+             "video without --masks; scene.json records that the masks are automatic.")] = False,
     fov_mask: Annotated[bool, typer.Option(
         help="Find the circular field of view (black border) and write it to fov_mask.png, "
              "apart from the tool masks.")] = True,
@@ -105,7 +108,8 @@ def import_command(
     config = ImportConfig(
         pattern=pattern, masks=masks, mask_pattern=mask_pattern,
         tool_labels=parse_labels(tool_labels), mask_match=mask_match,
-        allow_missing_masks=allow_missing_masks, fov_mask=fov_mask, right=right,
+        allow_missing_masks=allow_missing_masks, auto_tool_masks=auto_tool_masks,
+        fov_mask=fov_mask, right=right,
         baseline=baseline, disparity_only=disparity_only, depth_unit=depth_unit,
         stereo=StereoConfig(num_disparities=num_disparities, mode=stereo_mode), focal=focal,
         fx=fx, fy=fy, cx=cx, cy=cy, calibration=calibration,
@@ -137,7 +141,9 @@ def print_import_table(scene_dir: Path) -> None:
     fov = extra["fov_mask"]
     table.add_row("field of view", fov if isinstance(fov, str) else
                   f"{fov['kind']}, {100 * fov['inside_share']:.1f}% of pixels inside")
-    if "masks" in extra:
+    if extra.get("masks", {}).get("automatic"):
+        table.add_row("tool masks", "automatic (classical segmenter)")
+    elif "masks" in extra:
         table.add_row("tool labels", str(extra["masks"]["tool_labels"]))
     if "stereo" in extra:
         table.add_row("stereo", f"baseline {extra['stereo']['baseline']} "

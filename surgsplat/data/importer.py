@@ -20,6 +20,7 @@ rectified pair; fx and cx scale with the image width, fy and cy with its height.
 
 from __future__ import annotations
 
+import itertools
 import math
 import shutil
 from collections.abc import Callable, Iterator
@@ -29,6 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks
 from surgsplat.data.calibration import read_calibration
 from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
 from surgsplat.data.frames_source import FrameSource, list_frame_files
@@ -69,6 +71,10 @@ class ImportConfig:
     order for videos)."""
     allow_missing_masks: bool = False
     """Drop frames that have no mask instead of stopping with an error."""
+    auto_tool_masks: bool = False
+    """Find the tools in every frame with the classical segmenter (instead of `masks`)."""
+    auto_masks: AutoMaskConfig = field(default_factory=AutoMaskConfig)
+    """Parameters of the automatic tool segmenter."""
     fov_mask: bool = True
     """Find the circular field of view and write it to fov_mask.png (apart from the tool masks)."""
     fov: FovConfig = field(default_factory=FovConfig)
@@ -131,6 +137,10 @@ class ImportConfig:
                                    or self.allow_missing_masks):
             raise SurgsplatError("--tool-labels, --mask-pattern and --allow-missing-masks need "
                                  "--masks")
+        if self.auto_tool_masks:
+            if self.masks is not None:
+                raise SurgsplatError("give either --masks or --auto-tool-masks, not both")
+            self.auto_masks.validate()
         if self.tool_labels is not None and (
                 not self.tool_labels or not all(0 <= v <= 65535 for v in self.tool_labels)):
             raise SurgsplatError(f"--tool-labels must list class IDs in 0..65535, got "
@@ -297,10 +307,17 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         writer.set_fov(plan.fov.inside)
     if config.disparity_only:
         (out_dir / DISPARITY_DIR).mkdir()
-    pairs = _read_pairs(frames, right, plan.selected)
-    for done, (index, image, right_image) in enumerate(pairs, 1):
-        image = fit(image, frames.frame_path(index), frames.frame_label(index))
-        tool = None
+    fitted = ((index, fit(image, frames.frame_path(index), frames.frame_label(index)),
+               right_image) for index, image, right_image in
+              _read_pairs(frames, right, plan.selected))
+    automatic = itertools.repeat(None)
+    if config.auto_tool_masks:
+        # The segmenter looks a few frames ahead; tee holds only those frames.
+        fitted, ahead = itertools.tee(fitted)
+        automatic = auto_tool_masks((image for _, image, _ in ahead),
+                                    plan.fov.inside if plan.fov is not None else None,
+                                    config.auto_masks)
+    for done, ((index, image, right_image), tool) in enumerate(zip(fitted, automatic), 1):
         if plan.mask_of is not None:
             mask_path = plan.mask_of[index]
             tool = fit.mask(read_tool_labels(mask_path, config.tool_labels), mask_path)
@@ -451,11 +468,15 @@ def _provenance(plan: _Plan, config: ImportConfig) -> dict:
     }
     if config.masks is not None:
         extra["masks"] = {
-            "folder": str(config.masks.resolve()), "pattern": config.mask_pattern,
+            "automatic": False, "folder": str(config.masks.resolve()),
+            "pattern": config.mask_pattern,
             "tool_labels": (list(config.tool_labels) if config.tool_labels is not None
                             else "binary (nonzero = tool)"),
             "matched_by": resolve_mask_match(config.mask_match, frames.is_video),
         }
+    if config.auto_tool_masks:
+        extra["masks"] = {"automatic": True, "segmenter": "surgsplat.data.auto_tool_masks",
+                          "config": config.auto_masks.describe()}
     if config.right is not None:
         extra["stereo"] = {
             "right": str(config.right.resolve()), "baseline": config.baseline,
