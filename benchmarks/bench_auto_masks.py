@@ -19,6 +19,7 @@ eval --data`), so that both are scored over the same, truly tool-free pixels.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import datetime
 import subprocess
@@ -37,10 +38,12 @@ from surgsplat.atomic import write_text_atomic  # noqa: E402
 from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks  # noqa: E402
 from surgsplat.data.fov_mask import estimate_fov  # noqa: E402
 from surgsplat.data.frames_source import name_numbers  # noqa: E402
-from surgsplat.data.scene import read_image  # noqa: E402
+from surgsplat.data.scene import load_scene, read_image  # noqa: E402
 from surgsplat.data.tool_masks import read_tool_labels  # noqa: E402
 from surgsplat.errors import DataError  # noqa: E402
+from surgsplat.eval.run_metrics import EvalOptions, evaluate_run  # noqa: E402
 from surgsplat.render.native import system_info  # noqa: E402
+from surgsplat.train.run import load_trained_run  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "cholecseg8k-clip"
 TOOL_LABELS = (31, 32)
@@ -138,9 +141,10 @@ def train_comparison(data: Path, frame_count: int, iterations: int, work: Path) 
                         "--out", str(run_dir), "--iters", str(iterations)],
                        check=True, stdout=subprocess.DEVNULL)
         seconds = time.perf_counter() - started
-        subprocess.run([*SURGSPLAT, "eval", str(run_dir), "--data", str(scenes["labels"])],
-                       check=True, stdout=subprocess.DEVNULL)
-        metrics = json.loads((run_dir / "metrics.json").read_text())
+        # `surgsplat eval --data` refuses a scene of other content (masks differ): the run is
+        # scored here on the labelled scene's frames, which are the same images.
+        run = dataclasses.replace(load_trained_run(run_dir), scene=load_scene(scenes["labels"]))
+        metrics = evaluate_run(run, EvalOptions(geometry=False))
         rows[name] = {"train_seconds": round(seconds, 1), "iterations": metrics["iteration"],
                       **{key: metrics.get(key) for key in ("psnr_tissue", "ssim", "lpips")}}
     return {"method": "deform3dgs", "iterations": iterations, "frames": frame_count,

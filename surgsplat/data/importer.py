@@ -35,6 +35,7 @@ from surgsplat.data.calibration import read_calibration
 from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
 from surgsplat.data.frames_source import FrameSource, list_frame_files
 from surgsplat.data.layout import Intrinsics, SceneMeta, SceneWriter, frame_stem
+from surgsplat.data.shading_depth import ShadingDepthConfig, shading_depth
 from surgsplat.data.stereo import StereoConfig, disparity_to_depth, stereo_disparity
 from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
 from surgsplat.errors import DataError, SurgsplatError
@@ -47,6 +48,11 @@ DISPARITY_STEPS = 256
 MIN_DEPTH_DISPARITY = 1.0
 """Disparities below this (px) are too far to give a usable depth and are stored as 0 (unknown);
 the deepest stored depth is therefore fx x baseline."""
+DEPTH_SOURCES = ("none", "shading")
+"""Monocular depth priors of --depth: none, or near-light shading (surgsplat.data.shading_depth)."""
+SHADING_DEPTH_UNIT = "relative (shading)"
+"""scene.json depth_unit of shading depth: one unknown scale; train with the scale-invariant
+depth loss."""
 FOV_SAMPLE_FRAMES = 100
 """The field of view is estimated on at most this many of the selected frames, evenly spread."""
 
@@ -79,6 +85,10 @@ class ImportConfig:
     """Find the circular field of view and write it to fov_mask.png (apart from the tool masks)."""
     fov: FovConfig = field(default_factory=FovConfig)
     """How the field of view is found."""
+    depth: str = "none"
+    """Monocular depth prior: one of DEPTH_SOURCES."""
+    shading: ShadingDepthConfig = field(default_factory=ShadingDepthConfig)
+    """Parameters of the shading depth prior (depth "shading")."""
     right: Path | None = None
     """Right-camera video or folder of the rectified stereo pair; None = monocular."""
     baseline: float | None = None
@@ -167,6 +177,14 @@ class ImportConfig:
         return self.focal is not None or self.fx is not None or self.calibration is not None
 
     def _validate_stereo(self) -> None:
+        if self.depth not in DEPTH_SOURCES:
+            raise SurgsplatError(f"unknown --depth {self.depth!r}; expected one of "
+                                 f"{', '.join(DEPTH_SOURCES)}")
+        if self.depth != "none":
+            if self.right is not None:
+                raise SurgsplatError(f"give either --right (stereo depth) or --depth "
+                                     f"{self.depth}, not both")
+            self.shading.validate()
         if self.right is None:
             if self.baseline is not None or self.disparity_only:
                 raise SurgsplatError("--baseline and --disparity-only need --right")
@@ -302,6 +320,9 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         meta.depth_unit = config.depth_unit
         # 16-bit range spans depths up to fx x baseline (disparity MIN_DEPTH_DISPARITY px).
         depth_scale = fx * config.baseline / MIN_DEPTH_DISPARITY / 65535
+    if config.depth == "shading":
+        meta.depth_unit = SHADING_DEPTH_UNIT
+        depth_scale = 4 * config.shading.median_depth / 65535  # up to 4x the median depth
     writer = SceneWriter(out_dir, fx, meta, depth_scale=depth_scale)
     if plan.fov is not None and plan.fov.kind != "full":
         writer.set_fov(plan.fov.inside)
@@ -332,6 +353,12 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
             else:
                 disparity[disparity < MIN_DEPTH_DISPARITY] = 0.0
                 depth = disparity_to_depth(disparity, fx, config.baseline)
+        if config.depth == "shading":
+            outside = (~plan.fov.inside if plan.fov is not None and plan.fov.kind != "full"
+                       else np.zeros(image.shape[:2], bool))
+            excluded = outside if tool is None else outside | tool
+            depth = shading_depth(image, plan.intrinsics, excluded, config.shading)
+            depth[depth > 65535 * depth_scale] = 0.0  # beyond the 16-bit range: unknown
         writer.add_frame(image, depth, tool)
         report("import", done, len(plan.selected))
     meta.extra = _provenance(plan, config)
@@ -477,6 +504,10 @@ def _provenance(plan: _Plan, config: ImportConfig) -> dict:
     if config.auto_tool_masks:
         extra["masks"] = {"automatic": True, "segmenter": "surgsplat.data.auto_tool_masks",
                           "config": config.auto_masks.describe()}
+    if config.depth == "shading":
+        extra["depth"] = {"source": "shading", "config": config.shading.describe(),
+                          "scale": "relative: every frame's median depth is median_depth; train "
+                                   "with --set components.depth.form=scale_invariant"}
     if config.right is not None:
         extra["stereo"] = {
             "right": str(config.right.resolve()), "baseline": config.baseline,

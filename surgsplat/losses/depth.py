@@ -1,7 +1,7 @@
 """Depth losses against a measured depth map, over tissue pixels that have a measurement.
 
 Depths are float [H, W] in the scene's depth unit (e.g. millimetres); a ground-truth depth of 0
-means "no measurement". Masks are bool [H, W] with True = count the pixel (tissue). Both losses
+means "no measurement". Masks are bool [H, W] with True = count the pixel (tissue). The losses
 average over the counted pixels and are 0 when there is none.
 
 `DepthLoss` is the component that applies one of them to the render's depth map (the expected
@@ -49,12 +49,29 @@ def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     return reference * _mean_over((1.0 / safe_pred - 1.0 / safe_gt).abs(), valid)
 
 
+def scale_invariant_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+    """Mean |log pred - log gt - m| over masked pixels with gt > 0 and pred > 0, m the median
+    of log pred - log gt there: blind to one unknown scale of the measured depth (e.g. a
+    shading prior's), unit-free (about the relative depth error) and robust to outliers."""
+    valid = valid_depth_pixels(pred_depth, gt, mask) & (pred_depth > 0)
+    if not valid.any():
+        return (pred_depth * 0.0).sum()
+    log_ratio = torch.log(pred_depth[valid]) - torch.log(gt[valid])  # [P]
+    return (log_ratio - log_ratio.detach().median()).abs().mean()
+
+
+FORMS = {"l1": depth_l1, "inverse_l1": inverse_depth_l1,
+         "scale_invariant": scale_invariant_depth_l1}
+"""The depth loss of each DepthLossConfig.form."""
+
+
 @dataclass
 class DepthLossConfig(ComponentConfig, kind="depth_loss"):
     """How the rendered depth is compared with the measured depth."""
 
-    form: Literal["l1", "inverse_l1"] = "l1"
-    """L1 on depth, or L1 on inverse depth (EndoPlanar Eq. 9)."""
+    form: Literal["l1", "inverse_l1", "scale_invariant"] = "l1"
+    """L1 on depth, L1 on inverse depth (EndoPlanar Eq. 9), or scale-invariant L1 on log depth
+    (for relative depth such as `surgsplat import --depth shading`)."""
 
     def build(self) -> "DepthLoss":
         return DepthLoss(self)
@@ -75,5 +92,4 @@ class DepthLoss(Component):
         frame, output = context.frame, context.output
         if frame.depth is None:
             return {"depth": output.depth.sum() * 0.0}
-        loss = depth_l1 if self.config.form == "l1" else inverse_depth_l1
-        return {"depth": loss(output.depth, frame.depth, frame.tissue)}
+        return {"depth": FORMS[self.config.form](output.depth, frame.depth, frame.tissue)}
