@@ -16,10 +16,12 @@ and so r = sqrt(E(t) * rho * cos(theta) / I). Per frame:
    so that e.g. yellow fat does not look closer than red liver only for being brighter; what
    varies without a colour change is kept as shading. `albedo="constant"` assumes one albedo.
    Thin texture (vessels) is removed by a median filter on log I.
-3. log r = (log(rho cos) - log I) / 2 is smoothed (normalised Gaussian convolution over the
-   usable pixels, which also fills the set-aside ones), converted to z-depth along each pixel's
-   ray, and cos(theta) is re-estimated from the normals of that depth for `cos_iterations`
-   rounds.
+3. log r = (log rho - log I) / 2 is smoothed (after the set-aside pixels took the value of
+   their nearest usable pixel) and converted to z-depth along each pixel's ray. cos(theta) is
+   taken as 1: re-estimating it from the normals of the estimated depth (a fixed-point
+   iteration) diverged on rendered surfaces and on the phantom, so a surface seen at a slant
+   reads somewhat too far (2.8 % mean error on the bumpy plane tilted by about 10 degrees of
+   tests/import_/test_shading_depth.py).
 4. Exposure and the unknown scale: each frame's depth is scaled so that its median over the
    usable pixels is `median_depth`. This removes E(t) entirely; it also assumes the median
    distance to the tissue stays about the same over the clip (a camera that moves towards the
@@ -63,12 +65,6 @@ class ShadingDepthConfig:
     """Side (pixels at 854 wide) of the median filter on log brightness that removes vessels."""
     smooth_px: float = 12.0
     """Sigma (pixels at 854 wide) of the Gaussian smoothing of log distance."""
-    cos_iterations: int = 0
-    """Rounds re-estimating cos(theta) from the normals of the current depth; 0 = cos = 1.
-    Off by default: on the phantom each round made the depth worse (normals of a smoothed,
-    still noisy depth feed back into it; benchmarks/bench_shading_depth.py)."""
-    min_cos: float = 0.2
-    """Smallest cos(theta) used (grazing angles would blow up the distance)."""
     median_depth: float = 50.0
     """Median depth of every frame, in the scene's units (the unknown absolute scale)."""
 
@@ -79,9 +75,8 @@ class ShadingDepthConfig:
         if self.albedo not in ("chromaticity", "constant"):
             raise SurgsplatError(f"shading depth albedo must be 'chromaticity' or 'constant', "
                                  f"got {self.albedo!r}")
-        if not 0 < self.min_cos <= 1 or self.cos_iterations < 0 or self.texture_px < 1:
-            raise SurgsplatError("shading depth needs min_cos in (0, 1], cos_iterations >= 0 "
-                                 "and texture_px >= 1")
+        if self.texture_px < 1:
+            raise SurgsplatError("shading depth needs texture_px >= 1")
 
     def describe(self) -> dict:
         """JSON-ready parameters for scene.json."""
@@ -97,21 +92,6 @@ def _ray_lengths(intrinsics: Intrinsics, height: int, width: int) -> np.ndarray:
     u = (np.arange(width) + 0.5 - intrinsics.cx) / intrinsics.fx
     v = (np.arange(height) + 0.5 - intrinsics.cy) / intrinsics.fy
     return np.sqrt(1.0 + u[None, :] ** 2 + v[:, None] ** 2)
-
-
-def _incidence_cos(depth: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """cos of the angle between the surface normal of a z-depth map [H, W] and the ray back to
-    the camera, float64 [H, W] (central differences; the light is at the camera)."""
-    height, width = depth.shape
-    u = (np.arange(width) + 0.5 - intrinsics.cx) / intrinsics.fx
-    v = (np.arange(height) + 0.5 - intrinsics.cy) / intrinsics.fy
-    points = np.stack([u[None, :] * depth, v[:, None] * depth, depth], axis=-1)  # [H, W, 3]
-    along_u = np.gradient(points, axis=1)
-    along_v = np.gradient(points, axis=0)
-    normal = np.cross(along_u, along_v)
-    normal /= np.linalg.norm(normal, axis=-1, keepdims=True).clip(1e-12)
-    view = points / np.linalg.norm(points, axis=-1, keepdims=True).clip(1e-12)
-    return np.abs((normal * view).sum(-1))
 
 
 def _smooth(values: np.ndarray, usable: np.ndarray, sigma: float) -> np.ndarray:
@@ -151,13 +131,8 @@ def shading_depth(image: np.ndarray, intrinsics: Intrinsics, exclude: np.ndarray
                                       size=_odd(config.texture_px * scale))
     if config.albedo == "chromaticity":
         log_light = log_light - _albedo_log(log_light, linear, usable)
-    rays = _ray_lengths(intrinsics, height, width)
-    sigma = config.smooth_px * scale
-    log_cos = np.zeros((height, width))
-    for _ in range(config.cos_iterations + 1):
-        log_distance = _smooth(0.5 * (log_cos - log_light), usable, sigma)
-        depth = np.exp(log_distance) / rays
-        log_cos = np.log(np.clip(_incidence_cos(depth, intrinsics), config.min_cos, 1.0))
+    log_distance = _smooth(-0.5 * log_light, usable, config.smooth_px * scale)
+    depth = np.exp(log_distance) / _ray_lengths(intrinsics, height, width)  # [H, W]
     depth *= config.median_depth / np.median(depth[usable])
     depth[~keep] = 0.0
     return depth.astype(np.float32)

@@ -57,7 +57,7 @@ def scale_invariant_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Te
     if not valid.any():
         return (pred_depth * 0.0).sum()
     log_ratio = torch.log(pred_depth[valid]) - torch.log(gt[valid])  # [P]
-    return (log_ratio - log_ratio.detach().median()).abs().mean()
+    return (log_ratio - log_ratio.median()).abs().mean()
 
 
 FORMS = {"l1": depth_l1, "inverse_l1": inverse_depth_l1,
