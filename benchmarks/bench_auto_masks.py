@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import datetime
 import subprocess
 import sys
 import time
@@ -32,9 +31,8 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import results_path  # noqa: E402
+from bench_render import write_report  # noqa: E402
 
-from surgsplat.atomic import write_text_atomic  # noqa: E402
 from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks  # noqa: E402
 from surgsplat.data.fov_mask import estimate_fov  # noqa: E402
 from surgsplat.data.frames_source import name_numbers  # noqa: E402
@@ -42,7 +40,6 @@ from surgsplat.data.scene import load_scene, read_image  # noqa: E402
 from surgsplat.data.tool_masks import read_tool_labels  # noqa: E402
 from surgsplat.errors import DataError  # noqa: E402
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run  # noqa: E402
-from surgsplat.render.native import system_info  # noqa: E402
 from surgsplat.train.run import load_trained_run  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "cholecseg8k-clip"
@@ -176,21 +173,12 @@ def main() -> None:
         for name, row in result["training"]["rows"].items():
             print(f"deform3dgs {name}: psnr_tissue {row['psnr_tissue']:.2f} dB, "
                   f"ssim {row['ssim']:.4f}")
-    info = system_info()
-    report = {"benchmark": "bench_auto_masks", "cpu": info["cpu"], "system": info,
-              "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-              "command": " ".join(["python", "benchmarks/bench_auto_masks.py", *sys.argv[1:]]),
-              **result}
     for split in ("tuning", "held_out"):
         row = result[split]
         print(f"{split:9s} frames {result['splits'][split]}: IoU {row['iou']:.3f}  "
               f"precision {row['precision']:.3f}  recall {row['recall']:.3f}")
     if not args.set:
-        out = args.out or results_path("bench_auto_masks", info["cpu"])
-        out.parent.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(out, json.dumps(report, indent=2) + "\n")
-        print(f"results: {out}")
-
+        print(f"results: {write_report('bench_auto_masks', result, args.out)}")
 
 if __name__ == "__main__":
     main()

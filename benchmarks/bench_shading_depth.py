@@ -22,7 +22,6 @@ in its scale-invariant form), and both are evaluated against the phantom's meshe
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import shutil
 import subprocess
@@ -35,15 +34,13 @@ import numpy as np
 from scipy.stats import spearmanr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import results_path  # noqa: E402
+from bench_render import write_report  # noqa: E402
 from bench_stereo import read_ground_truth  # noqa: E402
 
-from surgsplat.atomic import write_text_atomic  # noqa: E402
 from surgsplat.data.layout import IMAGE_SUFFIXES, Intrinsics, frame_stem, list_files  # noqa: E402
 from surgsplat.data.phantom.generate import TISSUE_DEPTH_DIR  # noqa: E402
 from surgsplat.data.scene import load_scene, read_image  # noqa: E402
 from surgsplat.data.shading_depth import ShadingDepthConfig, shading_depth  # noqa: E402
-from surgsplat.render.native import system_info  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SCARED = ROOT.parent / "shared" / "data" / "scared-stereo-sample"
@@ -223,16 +220,7 @@ def main() -> None:
         for name, row in result["training"]["rows"].items():
             print(f"deform3dgs {name}: chamfer {row['chamfer_mm']:.3f} mm, depth_rmse "
                   f"{row['depth_rmse_mm']:.3f} mm, psnr_tissue {row['psnr_tissue']:.2f} dB")
-    info = system_info()
-    report = {"benchmark": "bench_shading_depth", "cpu": info["cpu"], "system": info,
-              "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-              "command": " ".join(["python", "benchmarks/bench_shading_depth.py", *sys.argv[1:]]),
-              **result}
-    out = args.out or results_path("bench_shading_depth", info["cpu"])
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out, json.dumps(report, indent=2) + "\n")
-    print(f"results: {out}")
-
+    print(f"results: {write_report('bench_shading_depth', result, args.out)}")
 
 if __name__ == "__main__":
     main()
