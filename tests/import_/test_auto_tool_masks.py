@@ -117,3 +117,17 @@ def test_held_out_cholecseg8k_frames_reach_tool_iou_0_6(shared_data: Path):
         tallies += [(mask & truth).sum(), (mask & ~truth).sum(), (~mask & truth).sum()]
     tp, fp, fn = tallies
     assert tp / (tp + fp + fn) >= 0.6
+
+
+@pytest.mark.slow
+def test_cli_auto_masks_with_shading_depth(tool_video: Path, tmp_path: Path, cli,
+                                           one_error_line):
+    result = cli("import", str(tool_video), "--out", str(tmp_path / "s"), "--auto-tool-masks",
+                 "--depth", "shading")
+    assert result.returncode == 0, result.stderr
+    assert "automatic" in result.stdout and "shading prior" in result.stdout
+    scene = load_scene(tmp_path / "s")
+    assert scene.has_masks and scene.has_depth
+    assert all((frame.depth.numpy()[frame.tool.numpy()] == 0).all() for frame in scene.frames)
+    result = cli("import", str(tool_video), "--out", str(tmp_path / "t"), "--depth", "sfm")
+    assert "unknown --depth 'sfm'" in one_error_line(result)
