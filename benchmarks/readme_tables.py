@@ -132,8 +132,10 @@ def auto_masks_table(report: dict) -> str:
                      f"| {1000 * report['seconds_per_frame']:.0f} |")
     if "training" in report:
         training = report["training"]
-        lines += ["", f"| {training['method']}, {training['iterations']} iterations "
-                      "| psnr_tissue | ssim |", "|---|---|---|"]
+        seeds = training.get("seeds", 1)
+        lines += ["", f"| {training['method']}, {training['iterations']} iterations, mean of "
+                      f"{seeds} seed{'s' if seeds > 1 else ''} | psnr_tissue | ssim |",
+                  "|---|---|---|"]
         for name, row in training["rows"].items():
             lines.append(f"| {name} | {cell(row, 'psnr_tissue', '.2f')} "
                          f"| {cell(row, 'ssim', '.4f')} |")
