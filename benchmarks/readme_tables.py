@@ -155,7 +155,7 @@ def shading_depth_table(report: dict) -> str:
                      f"| {row['spearman']:.3f} | {row['rel_constant']:.3f} |")
     if "training" in report:
         training = report["training"]
-        columns = ("psnr_tissue", "depth_rmse_mm", "chamfer_mm", "p2s_median_mm",
+        columns = ("psnr_tissue", "chamfer_mm", "p2s_median_mm", "normal_error_deg_median",
                    "chamfer_ratio_to_no_depth")
         lines += ["", f"| {training['method']}, {training['iterations']} iterations | "
                       + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
