@@ -9,6 +9,13 @@ A suite lists its cases, the metrics it reports and its baseline case; every rat
 that baseline in the same run. Results go to benchmarks/results/bench_methods_<suite>-<cpu>.json
 and become the README region `bench_methods_<suite>` (benchmarks/readme_tables.py).
 
+Suite `endogsg` (issue 13): deform3dgs, endogaussian and endoplanar beside endogsg and its
+ablations of Endo-GSG Table 4 (without the depth loss, without projection and orientation,
+without SDA); the mesh export of every frame is timed for deform3dgs and endogsg. Targets:
+endogsg gaussians_p2s_mean_mm <= 0.5 x deform3dgs, psnr_tissue within 0.5 dB of deform3dgs,
+training time <= 2 x, peak RSS <= 4 GB, meshes of all frames in <= 60 s, mesh P2S median
+<= 0.5 mm.
+
 Suite `endoplanar` (issue 9): deform3dgs; endoplanar without its normal loss; endoplanar; and
 deform3dgs on the moving-camera phantom with known poses. Targets: endoplanar psnr_tissue >= 38
 dB, median normal error <= 5 deg, depth_rmse_mm no worse than deform3dgs, training time within
@@ -46,6 +53,7 @@ class Case:
     method: str
     phantom: str  # key of PHANTOMS
     settings: tuple[str, ...] = ()  # --set assignments
+    export_mesh: bool = False  # also time `surgsplat export --mesh` of every frame
 
 
 PHANTOMS = {"pulling": ("--preset", "full", "--motion", "pulling"),
@@ -76,6 +84,22 @@ SUITES = {
                  "normal_error_deg_median", "normal_error_deg_mean", "chamfer_mm",
                  "p2s_median_mm"),
         baseline="deform3dgs", ratio_metrics=("depth_rmse_mm",)),
+    "endogsg": Suite(
+        cases=(
+            Case("deform3dgs", "deform3dgs", "pulling", export_mesh=True),
+            Case("endogsg", "endogsg", "pulling", export_mesh=True),
+            Case("endogaussian", "endogaussian", "pulling"),
+            Case("endogsg-no-depth", "endogsg", "pulling", ("losses.depth.weight=0",)),
+            Case("endogsg-no-proj-ori", "endogsg", "pulling",
+                 ("losses.projection.weight=0", "losses.orientation.weight=0")),
+            Case("endogsg-no-sda", "endogsg", "pulling", ("losses.sda.weight=0",)),
+            Case("endoplanar", "endoplanar", "pulling"),
+        ),
+        metrics=("gaussians_p2s_mean_mm", "gaussians_p2s_mean_ratio", "gaussians_p2s_p95_mm",
+                 "fscore_1mm", "chamfer_mm", "mesh_p2s_median_mm", "mesh_coverage",
+                 "mesh_largest_hole_cells", "mesh_export_seconds", "psnr_tissue",
+                 "psnr_occluded", "depth_rmse_mm"),
+        baseline="deform3dgs", ratio_metrics=("gaussians_p2s_mean_mm",)),
 }
 
 
@@ -103,6 +127,10 @@ def run_case(case: Case, work: Path, iterations: int | None) -> dict:
     wall = time.perf_counter() - started
     surgsplat("eval", str(run_dir))
     metrics = json.loads((run_dir / "metrics.json").read_text())
+    if case.export_mesh:
+        started = time.perf_counter()
+        surgsplat("export", str(run_dir), "--mesh", "--frames", "all")
+        metrics["mesh_export_seconds"] = time.perf_counter() - started
     row = {"case": case.name, "method": case.method, "phantom": case.phantom,
            "settings": list(case.settings), "iterations": metrics["iteration"],
            "wall_seconds": round(wall, 1)}
@@ -142,18 +170,26 @@ def main() -> None:
                         help="run only these cases of the suite (default: all)")
     parser.add_argument("--out", type=Path, default=None, help="result file (default "
                         "benchmarks/results/bench_methods_<suite>-<cpu>.json)")
+    parser.add_argument("--collect", type=Path, default=None, metavar="LOG",
+                        help="run nothing: write the report from the rows an interrupted "
+                             "`--json` run printed to LOG (its cases that finished)")
     args = parser.parse_args()
     suite = SUITES[args.suite]
     names = [case.name for case in suite.cases]
     unknown = set(args.cases or ()) - set(names)
     if unknown:
         parser.error(f"suite {args.suite} has no case {sorted(unknown)}; it has {names}")
-    args.work.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for case in suite.cases:
-        if args.cases is None or case.name in args.cases:
-            rows.append(run_case(case, args.work, args.iters))
-            print(json.dumps(rows[-1]) if args.json else f"done: {rows[-1]['case']}", flush=True)
+    if args.collect:
+        rows = [json.loads(line) for line in args.collect.read_text().splitlines()
+                if line.startswith('{"case"')]
+    else:
+        args.work.mkdir(parents=True, exist_ok=True)
+        rows = []
+        for case in suite.cases:
+            if args.cases is None or case.name in args.cases:
+                rows.append(run_case(case, args.work, args.iters))
+                print(json.dumps(rows[-1]) if args.json else f"done: {rows[-1]['case']}",
+                      flush=True)
     add_ratios(rows, suite)
     columns = suite.metrics + RUN_COLUMNS
     info = system_info()
@@ -162,6 +198,11 @@ def main() -> None:
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "command": " ".join(["python", "benchmarks/bench_methods.py", *sys.argv[1:]]),
               "rows": rows}
+    if args.collect:
+        done = {row["case"] for row in rows}
+        report["note"] = ("collected from the rows printed by an interrupted run; cases not "
+                          "finished: " + (", ".join(case.name for case in suite.cases
+                                                    if case.name not in done) or "none"))
     out = args.out or results_path(f"bench_methods_{args.suite}", info["cpu"])
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2) + "\n")

@@ -101,6 +101,8 @@ def methods_table(report: dict) -> str:
     for row in report["rows"]:
         cells = [cell(row, key, metric_format(key)) for key in columns]
         lines.append(f"| {row['case']} | " + " | ".join(cells) + " |")
+    if "note" in report:
+        lines += ["", report["note"]]
     return "\n".join(lines)
 
 

@@ -1,4 +1,5 @@
-"""`surgsplat export RUN --ply`: the deformed Gaussians of chosen frames as 3DGS PLY files."""
+"""`surgsplat export RUN --ply | --mesh`: the deformed Gaussians of chosen frames as 3DGS PLY
+files, and the tissue surface of chosen frames as triangle meshes."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from rich.console import Console
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.scene import Scene
 from surgsplat.errors import SurgsplatError
+from surgsplat.export.mesh import MESH_FORMATS, MeshExtractor, MeshOptions, write_mesh
 from surgsplat.export.ply import write_gaussian_ply
 from surgsplat.model.component import FrameTime
 from surgsplat.train.run import load_trained_run, run_lock
@@ -51,19 +53,48 @@ def export_command(
     frames: Annotated[str, typer.Option(help="'all' or frame indices, e.g. 0,8,16.")] = "all",
     time: Annotated[float | None, typer.Option(
         help="One time in [0, 1] instead of --frames.")] = None,
-    out: Annotated[Path | None, typer.Option(help="Folder (default RUN/export/ply).")] = None,
+    mesh: Annotated[bool, typer.Option(
+        "--mesh", help="Write the tissue surface at each chosen moment as a triangle mesh in the "
+                       "scene's unit and world frame, cropped to what the frame's camera sees: "
+                       "marching cubes of the signed distance field for methods that have one, "
+                       "the rendered depth triangulated for the others.")] = False,
+    mesh_resolution: Annotated[int, typer.Option(
+        help="Marching-cubes cells along the SDF box's longest side.")] = MeshOptions.resolution,
+    mesh_format: Annotated[str, typer.Option(
+        "--format", help=f"Mesh file format: {', '.join(MESH_FORMATS)}.")] = "ply",
+    out: Annotated[Path | None, typer.Option(
+        help="Folder (default RUN/export/ply and RUN/export/mesh).")] = None,
     data: Annotated[Path | None, typer.Option(
         help="Scene folder (default: the run's; its content must be the run's scene).")] = None,
 ) -> None:
-    """Export a trained run's deformed Gaussians."""
-    if not ply:
-        raise SurgsplatError("nothing to export: pass --ply")
+    """Export a trained run's deformed Gaussians and tissue meshes."""
+    if not (ply or mesh):
+        raise SurgsplatError("nothing to export: pass --ply and/or --mesh")
+    if mesh_format not in MESH_FORMATS:
+        raise SurgsplatError(f"--format: expected one of {', '.join(MESH_FORMATS)}, got "
+                             f"{mesh_format!r}")
+    if mesh_resolution < 8:
+        raise SurgsplatError(f"--mesh-resolution must be at least 8, got {mesh_resolution}")
+    console = Console()
     with run_lock(run_dir):
         run = load_trained_run(run_dir, data)
-        folder = out or Path(run_dir) / "export" / "ply"
         moments = chosen_moments(run.scene, frames, time)
-        with torch.no_grad():
+        if ply:
+            folder = out or Path(run_dir) / "export" / "ply"
+            with torch.no_grad():
+                for stem, when in moments:
+                    write_gaussian_ply(run.model.state_at(when), folder / f"{stem}.ply")
+            console.print(f"{len(moments)} PLY file(s), {run.model.gaussians.num_gaussians} "
+                          f"Gaussians each, in {folder}")
+        if mesh:
+            folder = out or Path(run_dir) / "export" / "mesh"
+            background = torch.tensor(run.config.train.background, dtype=torch.float32)
+            extractor = MeshExtractor(run.model, MeshOptions(resolution=mesh_resolution),
+                                      background)
+            faces = 0
             for stem, when in moments:
-                write_gaussian_ply(run.model.state_at(when), folder / f"{stem}.ply")
-    Console().print(f"{len(moments)} PLY file(s), {run.model.gaussians.num_gaussians} Gaussians "
-                    f"each, in {folder}")
+                frame_mesh = extractor.frame_mesh(run.scene.frames[when.index], when)
+                write_mesh(frame_mesh, folder / f"{stem}.{mesh_format}")
+                faces += len(frame_mesh.faces)
+            console.print(f"{len(moments)} mesh file(s) ({extractor.route} route, "
+                          f"{faces // max(len(moments), 1)} faces on average) in {folder}")

@@ -24,16 +24,19 @@ from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.phantom.generate import TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
 from surgsplat.data.scene import Camera, Frame, read_image, read_npy
-from surgsplat.eval.geometry_metrics import depth_rmse, geometry_metrics
+from surgsplat.eval.geometry_metrics import (depth_rmse, geometry_metrics, point_to_surface,
+                                             sample_surface)
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
 from surgsplat.eval.normals import normal_angle_deg, surface_normals
-from surgsplat.image.pinhole import backproject
+from surgsplat.export.mesh import FrameMesh, MeshExtractor, coverage
+from surgsplat.image.pinhole import backproject, inside_image, project_points
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
 
 GEOMETRY_KEYS = ("chamfer_mm", "p2s_mean_mm", "p2s_median_mm", "p2s_p95_mm", "fscore_1mm")
+"""Geometry of the rendered depth back-projected (no prefix), of the exported mesh (`mesh_`)."""
 GEOMETRY_POINTS = 60_000
 """Reconstructed points per test frame used for geometry (a seeded subsample)."""
 
@@ -68,6 +71,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     angles: list[torch.Tensor] = []
     normal_source = None
     render_seconds = 0.0
+    meshes = MeshExtractor(run.model, background=background) if options.geometry else None
     for frame in frames:
         started = time.perf_counter()
         out = render_frame(run.model, frame.camera, FrameTime(frame.index, frame.time), background)
@@ -81,8 +85,13 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         row.update(occluded_row(out.rgb.clamp(0, 1), out.depth, frame, scene.root))
         gt_mesh = mesh_path(scene.root, frame.index)
         if options.geometry and gt_mesh.is_file():
+            gt_vertices, gt_faces = read_ply_mesh(gt_mesh)
             row.update(frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
-                                      gt_mesh, seed=frame.index))
+                                      gt_vertices, gt_faces, seed=frame.index))
+            row.update(mesh_geometry(meshes.frame_mesh(frame), frame, gt_vertices, gt_faces))
+            row.update(gaussian_geometry(run.model.state_at(FrameTime(frame.index, frame.time))
+                                         .means.detach(), frame, gt_vertices, gt_faces,
+                                         seed=frame.index))
         gt_normals = normals_path(scene.root, frame.index)
         if options.geometry and gt_normals.is_file():
             normals, valid, normal_source = surface_normals(out, frame.camera.K)
@@ -124,6 +133,14 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         "depth_rmse_occluded": "render vs gt/tissue_depth over the same pixels",
         "geometry": "rendered depth back-projected over tissue pixels with the frame's camera "
                     "into the world frame vs gt tissue mesh",
+        "mesh_geometry": "mesh_*: the frame's exported tissue mesh (surgsplat export --mesh; "
+                         f"route {meshes.route if meshes else None}), area-sampled, vs gt tissue "
+                         "mesh; mesh_coverage: fraction of tissue pixels (one grid cell in from "
+                         "the mask border) the mesh covers; mesh_largest_hole_cells: largest "
+                         "uncovered region there, in grid cells",
+        "gaussians_p2s": "distance of every deformed Gaussian centre that projects inside the "
+                         "frame's field of view to the gt tissue mesh (Endo-GSG's P2S of the "
+                         "Gaussian point cloud), whatever its opacity",
         "normal_error_deg": "angle between rendered (or rendered-depth) and gt normals, "
                             "orientation-free, pooled over the tissue pixels of all test frames",
         "fps": "rendering the test frames, this machine",
@@ -163,14 +180,46 @@ def occluded_row(rgb: torch.Tensor, depth: torch.Tensor, frame: Frame,
 
 
 def frame_geometry(depth: torch.Tensor, alpha: torch.Tensor, tissue: torch.Tensor,
-                   camera: Camera, gt_mesh: Path, seed: int) -> dict[str, float]:
+                   camera: Camera, gt_vertices: np.ndarray, gt_faces: np.ndarray,
+                   seed: int) -> dict[str, float]:
     """Geometry metrics of one frame's reconstructed tissue surface against its gt mesh: the
     depth [H, W] rendered from `camera`, back-projected into the world frame of the mesh."""
     surface = tissue & (alpha > 0.5)
     points = backproject(depth, camera.K, surface, camera.camera_to_world).numpy()
-    if len(points) > GEOMETRY_POINTS:
-        keep = np.random.default_rng(seed).choice(len(points), GEOMETRY_POINTS, replace=False)
-        points = points[keep]
-    vertices, faces = read_ply_mesh(gt_mesh)
-    metrics = geometry_metrics(points, vertices, faces, seed=seed)
+    metrics = geometry_metrics(_subsample(points, seed), gt_vertices, gt_faces, seed=seed)
     return {key: metrics[key] for key in GEOMETRY_KEYS}
+
+
+def mesh_geometry(mesh: FrameMesh, frame: Frame, gt_vertices: np.ndarray,
+                  gt_faces: np.ndarray) -> dict[str, float]:
+    """mesh_* metrics of one frame's extracted mesh against its gt mesh (see conventions)."""
+    covered, largest_hole = coverage(mesh, frame)
+    row = {"mesh_coverage": covered, "mesh_largest_hole_cells": largest_hole}
+    if len(mesh.faces):
+        points = sample_surface(mesh.vertices, mesh.faces, GEOMETRY_POINTS, seed=frame.index)
+        metrics = geometry_metrics(points, gt_vertices, gt_faces, seed=frame.index)
+        row.update({f"mesh_{key}": metrics[key] for key in GEOMETRY_KEYS})
+    return row
+
+
+def gaussian_geometry(means: torch.Tensor, frame: Frame, gt_vertices: np.ndarray,
+                      gt_faces: np.ndarray, seed: int) -> dict[str, float]:
+    """gaussians_p2s_* of the deformed centres [N, 3] seen inside `frame`'s field of view."""
+    camera = frame.camera
+    pixel, z = project_points(means, camera.K, camera.world_to_camera)
+    seen = inside_image(pixel, z, camera.width, camera.height)
+    seen[seen.clone()] = frame.fov[pixel[seen, 1], pixel[seen, 0]]
+    if not seen.any():
+        return {}
+    distance = point_to_surface(_subsample(means[seen].numpy(), seed), gt_vertices, gt_faces)
+    return {"gaussians_p2s_mean_mm": float(distance.mean()),
+            "gaussians_p2s_median_mm": float(np.median(distance)),
+            "gaussians_p2s_p95_mm": float(np.percentile(distance, 95))}
+
+
+def _subsample(points: np.ndarray, seed: int) -> np.ndarray:
+    """At most GEOMETRY_POINTS of points [N, 3], a seeded random choice."""
+    if len(points) <= GEOMETRY_POINTS:
+        return points
+    keep = np.random.default_rng(seed).choice(len(points), GEOMETRY_POINTS, replace=False)
+    return points[keep]

@@ -50,6 +50,28 @@ def backproject(depth: Tensor, K: Tensor, mask: Tensor,
     return points @ pose[:3, :3].T + pose[:3, 3]
 
 
+def project_points(points: Tensor, K: Tensor, world_to_camera: Tensor) -> tuple[Tensor, Tensor]:
+    """World points [P, 3] -> (pixel [P, 2] as (column, row) indices of the pixel each falls in,
+    int64, possibly outside the image; z-depth [P] in the camera frame, scene units). The
+    inverse of `backproject` at pixel centres. world_to_camera: [4, 4]; K: [3, 3]."""
+    pose = world_to_camera.to(points.dtype)
+    camera = points @ pose[:3, :3].T + pose[:3, 3]
+    z = camera[:, 2]
+    safe_z = torch.where(z > 0, z, torch.ones_like(z))
+    K = K.to(points.dtype)
+    u = K[0, 0] * camera[:, 0] / safe_z + K[0, 2]
+    v = K[1, 1] * camera[:, 1] / safe_z + K[1, 2]
+    pixel = torch.stack([u, v], dim=1).detach().floor().long()
+    return pixel, z
+
+
+def inside_image(pixel: Tensor, z: Tensor, width: int, height: int) -> Tensor:
+    """[P] bool: in front of the camera (z > 0) and within a width x height image, for the
+    (column, row) pixel indices [P, 2] of `project_points`."""
+    return ((z > 0) & (pixel[:, 0] >= 0) & (pixel[:, 0] < width) & (pixel[:, 1] >= 0)
+            & (pixel[:, 1] < height))
+
+
 def depth_normals(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
     """Camera-space normals of the surface a depth map [H, W] describes (EndoPlanar Eq. 7).
 

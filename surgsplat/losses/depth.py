@@ -18,21 +18,27 @@ import torch
 from torch import Tensor
 
 from surgsplat.image.depth import valid_depth_pixels
-from surgsplat.model.component import Component, ComponentConfig, RenderContext
+from surgsplat.losses.occlusion import OcclusionImportance
+from surgsplat.model.component import Component, ComponentConfig, RenderContext, SetupContext
 
 
-def _mean_over(errors: Tensor, valid: Tensor) -> Tensor:
-    weights = valid.to(errors.dtype)
-    return (errors * weights).sum() / weights.sum().clamp_min(1.0)
+def _mean_over(errors: Tensor, valid: Tensor, weights: Tensor | None = None) -> Tensor:
+    """Mean of errors [H, W] over the valid pixels, each multiplied by its weight if given."""
+    counted = valid.to(errors.dtype)
+    per_pixel = counted if weights is None else counted * weights
+    return (errors * per_pixel).sum() / counted.sum().clamp_min(1.0)
 
 
-def depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
-    """Mean |pred - gt| (depth units) over masked pixels with gt > 0."""
+def depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,
+             weights: Tensor | None = None) -> Tensor:
+    """Mean |pred - gt| (depth units) over masked pixels with gt > 0; `weights` [H, W] weight
+    each pixel's error (Endo-GSG Eq. 12)."""
     valid = valid_depth_pixels(pred_depth, gt, mask)
-    return _mean_over((pred_depth - gt).abs(), valid)
+    return _mean_over((pred_depth - gt).abs(), valid, weights)
 
 
-def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,
+                     weights: Tensor | None = None) -> Tensor:
     """Mean |1/pred - 1/gt| over masked pixels with gt > 0 and pred > 0, times the median
     measured depth of those pixels: unit-free (about the relative depth error), so that one
     weight suits scenes in millimetres or metres.
@@ -46,18 +52,22 @@ def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     if not valid.any():
         return (pred_depth * 0.0).sum()
     reference = gt[valid].median()
-    return reference * _mean_over((1.0 / safe_pred - 1.0 / safe_gt).abs(), valid)
+    return reference * _mean_over((1.0 / safe_pred - 1.0 / safe_gt).abs(), valid, weights)
 
 
-def scale_invariant_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+def scale_invariant_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,
+                             weights: Tensor | None = None) -> Tensor:
     """Mean |log pred - log gt - m| over masked pixels with gt > 0 and pred > 0, m the median
     of log pred - log gt there: blind to one unknown scale of the measured depth (e.g. a
-    shading prior's), unit-free (about the relative depth error) and robust to outliers."""
+    shading prior's), unit-free (about the relative depth error) and robust to outliers;
+    `weights` [H, W] weight each pixel's error."""
     valid = valid_depth_pixels(pred_depth, gt, mask) & (pred_depth > 0)
     if not valid.any():
         return (pred_depth * 0.0).sum()
-    log_ratio = torch.log(pred_depth[valid]) - torch.log(gt[valid])  # [P]
-    return (log_ratio - log_ratio.median()).abs().mean()
+    # Invalid pixels get depth 1 before the log, so that no inf or nan enters the graph.
+    log_ratio = (torch.log(torch.where(valid, pred_depth, torch.ones_like(pred_depth)))
+                 - torch.log(torch.where(valid, gt, torch.ones_like(gt))))  # [H, W]
+    return _mean_over((log_ratio - log_ratio[valid].median()).abs(), valid, weights)
 
 
 FORMS = {"l1": depth_l1, "inverse_l1": inverse_depth_l1,
@@ -72,6 +82,9 @@ class DepthLossConfig(ComponentConfig, kind="depth_loss"):
     form: Literal["l1", "inverse_l1", "scale_invariant"] = "l1"
     """L1 on depth, L1 on inverse depth (EndoPlanar Eq. 9), or scale-invariant L1 on log depth
     (for relative depth such as `surgsplat import --depth shading`)."""
+    occlusion_gamma: float = 0.0
+    """gamma of Endo-GSG's occlusion importance map weighting each pixel (Eq. 11-12); 0 = every
+    tissue pixel weighs 1."""
 
     def build(self) -> "DepthLoss":
         return DepthLoss(self)
@@ -84,6 +97,10 @@ class DepthLoss(Component):
     def __init__(self, config: DepthLossConfig):
         super().__init__()
         self.config = config
+        self.importance = OcclusionImportance(config.occlusion_gamma)
+
+    def setup(self, context: SetupContext) -> None:
+        self.importance.observe(context.frames)
 
     def loss_names(self) -> tuple[str, ...]:
         return ("depth",)
@@ -92,4 +109,6 @@ class DepthLoss(Component):
         frame, output = context.frame, context.output
         if frame.depth is None:
             return {"depth": output.depth.sum() * 0.0}
-        return {"depth": FORMS[self.config.form](output.depth, frame.depth, frame.tissue)}
+        weights = self.importance.weights(frame) if self.config.occlusion_gamma > 0 else None
+        return {"depth": FORMS[self.config.form](output.depth, frame.depth, frame.tissue,
+                                                 weights)}

@@ -15,7 +15,8 @@ import torch
 from torch import Tensor
 
 from surgsplat.image.ssim import ssim
-from surgsplat.model.component import Component, ComponentConfig, RenderContext
+from surgsplat.losses.occlusion import OcclusionImportance
+from surgsplat.model.component import Component, ComponentConfig, RenderContext, SetupContext
 
 
 def _check(pred: Tensor, gt: Tensor, mask: Tensor) -> None:
@@ -27,12 +28,14 @@ def _check(pred: Tensor, gt: Tensor, mask: Tensor) -> None:
                          f"{mask.dtype} {tuple(mask.shape)}")
 
 
-def masked_l1(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
-    """Mean absolute difference over the masked pixels and all channels; 0 if the mask is empty."""
+def masked_l1(pred: Tensor, gt: Tensor, mask: Tensor, weights: Tensor | None = None) -> Tensor:
+    """Mean absolute difference over the masked pixels and all channels; 0 if the mask is empty.
+    With `weights` [H, W] (e.g. an occlusion importance map, 0 off the mask), each pixel's
+    difference is multiplied by its weight before the mean over the masked pixels (Eq. 12)."""
     _check(pred, gt, mask)
-    weights = mask.unsqueeze(-1).to(pred.dtype)  # [H, W, 1]
-    count = weights.sum().clamp_min(1.0) * pred.shape[2]
-    return ((pred - gt).abs() * weights).sum() / count
+    count = mask.sum().clamp_min(1) * pred.shape[2]
+    per_pixel = mask.to(pred.dtype) if weights is None else weights * mask
+    return ((pred - gt).abs() * per_pixel.unsqueeze(-1)).sum() / count
 
 
 def d_ssim(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
@@ -45,10 +48,11 @@ def d_ssim(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     return 1.0 - ssim(pred * weights, gt * weights, mask)
 
 
-def photometric_loss(pred: Tensor, gt: Tensor, mask: Tensor, lambda_dssim: float) -> Tensor:
+def photometric_loss(pred: Tensor, gt: Tensor, mask: Tensor, lambda_dssim: float,
+                     weights: Tensor | None = None) -> Tensor:
     """(1 - lambda) L1 + lambda D-SSIM over the masked pixels (3DGS uses lambda = 0.2);
-    D-SSIM is not computed when lambda is 0."""
-    loss = masked_l1(pred, gt, mask)
+    D-SSIM is not computed when lambda is 0. `weights` [H, W] weight the L1 term's pixels."""
+    loss = masked_l1(pred, gt, mask, weights)
     if lambda_dssim == 0:
         return loss
     return (1.0 - lambda_dssim) * loss + lambda_dssim * d_ssim(pred, gt, mask)
@@ -60,22 +64,31 @@ class PhotometricConfig(ComponentConfig, kind="photometric_loss"):
 
     lambda_dssim: float = 0.2
     """Weight of D-SSIM against L1 (3DGS uses 0.2; 0 = L1 only, as EndoPlanar Eq. 9)."""
+    occlusion_gamma: float = 0.0
+    """gamma of Endo-GSG's occlusion importance map weighting the L1 term (Eq. 11-12); 0 = every
+    tissue pixel weighs 1."""
 
     def build(self) -> "PhotometricLoss":
         return PhotometricLoss(self)
 
 
 class PhotometricLoss(Component):
-    """Loss term "photometric": `photometric_loss` of the rendered colour over tissue pixels."""
+    """Loss term "photometric": `photometric_loss` of the rendered colour over tissue pixels,
+    the L1 term weighted by the occlusion importance map when occlusion_gamma > 0."""
 
     def __init__(self, config: PhotometricConfig):
         super().__init__()
         self.config = config
+        self.importance = OcclusionImportance(config.occlusion_gamma)
+
+    def setup(self, context: SetupContext) -> None:
+        self.importance.observe(context.frames)
 
     def loss_names(self) -> tuple[str, ...]:
         return ("photometric",)
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         frame = context.frame
+        weights = self.importance.weights(frame) if self.config.occlusion_gamma > 0 else None
         return {"photometric": photometric_loss(context.output.rgb, frame.image, frame.tissue,
-                                                self.config.lambda_dssim)}
+                                                self.config.lambda_dssim, weights)}

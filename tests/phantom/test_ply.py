@@ -4,6 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from plyfile import PlyData, PlyElement
 
 from surgsplat.data.ply import read_ply_mesh, write_ply_mesh
 from surgsplat.errors import DataError
@@ -57,11 +58,11 @@ def test_bad_files_raise_data_error(tmp_path: Path):
 
 
 def test_quads_are_rejected(tmp_path: Path):
-    vertices, faces = random_mesh()
-    data = bytearray(write_ply_mesh(tmp_path / "q.ply", vertices, faces).read_bytes())
-    body_start = data.index(b"end_header\n") + len(b"end_header\n")
-    data[body_start + 40 * 12] = 4  # first face's vertex count
-    (tmp_path / "q.ply").write_bytes(bytes(data))
+    vertices = np.zeros(4, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    quad = np.empty(1, dtype=[("vertex_indices", object)])
+    quad["vertex_indices"][0] = np.array([0, 1, 2, 3], dtype=np.int32)
+    PlyData([PlyElement.describe(vertices, "vertex"), PlyElement.describe(quad, "face")],
+            text=False, byte_order="<").write(str(tmp_path / "q.ply"))
     with pytest.raises(DataError, match="not triangles"):
         read_ply_mesh(tmp_path / "q.ply")
 

@@ -1,0 +1,274 @@
+"""A neural signed distance field coupled to the Gaussians (Endo-GSG, Sections 3.3-3.4).
+
+The field f(x) lives in canonical space: it is evaluated at the canonical Gaussian centres, and
+the deformation component carries the Gaussians (and with them the surface f = 0) to every
+time. One canonical surface suits a deforming scene because the deformation, not the SDF, explains
+the motion; an SDF evaluated at the deformed centres (the paper's wording) would have to be one
+surface for all the frames' shapes at once, and a time-conditioned f(x, t) would need the
+deformation's work again and make opacity depend on time.
+
+Encoding: a few dense 3D feature grids of increasing resolution over the canonical bounding box
+(a dense multi-resolution grid rather than a hash table: the tissue's box is small, and dense
+trilinear lookup is a single vectorised `grid_sample` per level on a CPU), concatenated with the
+normalised position and decoded by a 2-layer MLP (Softplus activations). The output is scaled by
+half the box diagonal, so f is in scene units and its gradient has length 1 when the Eikonal
+loss holds. Gradients of f are taken by tetrahedral finite differences (as Neuralangelo does),
+which needs no double backward through the grid lookup.
+
+The coupling, as the component contract expresses it:
+- opacity: every Gaussian's opacity is multiplied by the bell Phi_beta(f(mu)) = 4 s (1 - s),
+  s = sigmoid(beta f(mu)) (Eq. 4; beta learnable), also given to densification as
+  `opacity_factor`, so pruning, cloning and resets act on the rendered opacity;
+- losses on a random subset of Gaussians per step: "eikonal" (Eq. 13), "projection" (Eq. 7-8),
+  "orientation" (Eq. 9-10: the shortest axis along the SDF normal) and "sda" (Eq. 6: the
+  normalised SDF vector against the normalised signed depth differences of the deformed centres
+  to the frame's measured depth). The depth loss of Eq. 5 is the method's depth component, whose
+  rendered depth the SDF opacity shapes.
+
+Sign convention: f > 0 in front of the surface (the camera side, free space), f < 0 behind it.
+`setup` fits the field to the initial point cloud along the first camera's rays before training.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from surgsplat.errors import SurgsplatError
+from surgsplat.image.pinhole import inside_image, project_points
+from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
+                                       RenderContext, SetupContext)
+from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.state import GaussianState
+from surgsplat.render.rotation import quaternion_to_matrix
+
+TETRAHEDRON = torch.tensor([[1.0, -1.0, -1.0], [-1.0, -1.0, 1.0], [-1.0, 1.0, -1.0],
+                            [1.0, 1.0, 1.0]])
+"""Vertices of the regular tetrahedron used for finite-difference gradients."""
+
+
+@dataclass
+class SDFConfig(ComponentConfig, kind="sdf"):
+    """Size, schedule and coupling of the signed distance field."""
+
+    resolutions: tuple[int, ...] = (16, 32, 64)
+    """Cells per axis of each dense feature grid over the canonical box."""
+    feature_dim: int = 2
+    """Feature channels of every grid."""
+    mlp_width: int = 32
+    """Width of the MLP's two hidden layers."""
+    grid_lr: float = 1e-2
+    """Adam learning rate of the feature grids."""
+    mlp_lr: float = 1e-3
+    """Adam learning rate of the MLP."""
+    beta_lr: float = 1e-2
+    """Adam learning rate of log(beta); 0 keeps beta fixed at its initial value."""
+    bell_width: float = 0.02
+    """Initial 1 / beta as a fraction of the scene extent (a Gaussian this far from the surface
+    keeps 4 s (1 - s) = 0.79 of its opacity)."""
+    samples_per_step: int = 2048
+    """Gaussians drawn per step for the Eikonal, projection, orientation and SDA losses."""
+    box_margin: float = 0.15
+    """Margin added on every side of the initial points' bounding box, as a fraction of its size."""
+    gradient_step: float = 0.5
+    """Finite-difference step, in cells of the finest grid."""
+    fit_steps: int = 200
+    """Adam steps fitting the field to the initial points along the first camera's rays."""
+    fit_band: float = 0.05
+    """Half-width of the band around the initial points the fit samples, fraction of the extent."""
+
+    def build(self) -> "SDFField":
+        return SDFField(self)
+
+
+class SDFField(Component):
+    """grids[l]: [1, C, R_l, R_l, R_l]; box: [2, 3] (lo, hi) canonical bounds, scene units."""
+
+    def __init__(self, config: SDFConfig):
+        super().__init__()
+        if not config.resolutions or min(config.resolutions) < 2:
+            raise SurgsplatError("sdf needs at least one grid resolution, each >= 2")
+        self.config = config
+        self.grids = nn.ParameterList(
+            nn.Parameter(torch.randn(1, config.feature_dim, r, r, r) * 1e-2)
+            for r in config.resolutions)
+        width = config.mlp_width
+        self.mlp = nn.Sequential(
+            nn.Linear(config.feature_dim * len(config.resolutions) + 3, width),
+            nn.Softplus(beta=20.0), nn.Linear(width, width), nn.Softplus(beta=20.0),
+            nn.Linear(width, 1))
+        self.log_beta = nn.Parameter(torch.zeros(()))
+        self.register_buffer("box", torch.tensor([[-1.0] * 3, [1.0] * 3]))
+        self.register_buffer("initial_beta", torch.ones(()))  # 1 / scene units, set by setup
+
+    # ---- the field ----
+    def unit(self) -> Tensor:
+        """Scalar: half the box diagonal, the scene length of one unit of MLP output."""
+        return 0.5 * (self.box[1] - self.box[0]).norm()
+
+    def normalise(self, points: Tensor) -> Tensor:
+        """[P, 3] scene units -> [P, 3] in [-1, 1] over the box (outside values unclamped)."""
+        return (points - self.box[0]) / (self.box[1] - self.box[0]) * 2.0 - 1.0
+
+    def signed_distance(self, points: Tensor) -> Tensor:
+        """f at world points [P, 3] (canonical space, scene units) -> [P] in scene units."""
+        coords = self.normalise(points)
+        grid = coords.flip(-1).view(1, 1, 1, -1, 3)  # grid_sample wants (x, y, z) -> (W, H, D)
+        features = [F.grid_sample(level, grid, mode="bilinear", padding_mode="border",
+                                  align_corners=True).view(level.shape[1], -1).T
+                    for level in self.grids]
+        return self.mlp(torch.cat([*features, coords], dim=1))[:, 0] * self.unit()
+
+    def gradient_step(self) -> Tensor:
+        """Scalar finite-difference step in scene units (a fraction of the finest cell)."""
+        cell = (self.box[1] - self.box[0]).min() / (max(self.config.resolutions) - 1)
+        return self.config.gradient_step * cell
+
+    def value_and_gradient(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """f [P] and its gradient [P, 3] at points [P, 3] (see `tetrahedral_gradient`)."""
+        return tetrahedral_gradient(self.signed_distance, points, self.gradient_step())
+
+    def beta(self) -> Tensor:
+        """Scalar sharpness of the bell, 1 / scene units."""
+        return self.initial_beta * torch.exp(self.log_beta)
+
+    def bell(self, distance: Tensor) -> Tensor:
+        """Phi_beta(f) = 4 e^(-beta f) / (1 + e^(-beta f))^2 in (0, 1], 1 on the surface (Eq. 4)."""
+        s = torch.sigmoid(self.beta() * distance)
+        return 4.0 * s * (1.0 - s)
+
+    # ---- the component contract ----
+    def setup(self, context: SetupContext) -> None:
+        points = context.points
+        lo, hi = points.min(dim=0).values, points.max(dim=0).values
+        margin = (hi - lo).clamp_min(1e-3 * context.scene_extent) * self.config.box_margin
+        self.box.copy_(torch.stack([lo - margin, hi + margin]))
+        self.initial_beta.fill_(1.0 / (self.config.bell_width * context.scene_extent))
+        self._fit(points, context)
+
+    def _fit(self, points: Tensor, context: SetupContext) -> None:
+        """Fit f to the initial points: zero on them, the signed distance along the first
+        camera's ray around them (positive toward the camera), unit gradient."""
+        extent = context.scene_extent
+        centre = context.frames[0].camera.camera_to_world[:3, 3]
+        toward_camera = nn.functional.normalize(centre - points, dim=1)  # [M, 3]
+        band = self.config.fit_band * extent
+        parameters = [*self.grids, *self.mlp.parameters()]
+        optimizer = torch.optim.Adam(parameters, lr=self.config.mlp_lr * 5)
+        generator = torch.Generator().manual_seed(0)
+        count = min(self.config.samples_per_step, points.shape[0])
+        for _ in range(self.config.fit_steps):
+            pick = torch.randint(points.shape[0], (count,), generator=generator)
+            offset = (torch.rand(count, generator=generator) * 2 - 1) * band
+            samples = points[pick] + offset[:, None] * toward_camera[pick]
+            value, gradient = self.value_and_gradient(samples)
+            loss = ((value - offset).abs().mean() / band
+                    + 0.1 * eikonal_loss(gradient))
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+
+    def param_groups(self) -> list[ParamGroup]:
+        groups = [ParamGroup("sdf_grid", list(self.grids), self.config.grid_lr),
+                  ParamGroup("sdf_mlp", list(self.mlp.parameters()), self.config.mlp_lr)]
+        if self.config.beta_lr > 0:
+            groups.append(ParamGroup("sdf_beta", [self.log_beta], self.config.beta_lr))
+        return groups
+
+    def transform(self, state: GaussianState, gaussians: GaussianModel,
+                  when: FrameTime) -> GaussianState:
+        """Opacities times the bell of f at the canonical centres (Eq. 4)."""
+        factor = self.bell(self.signed_distance(gaussians.params["means"]))
+        return state.replace(opacities=state.opacities * factor)
+
+    @torch.no_grad()
+    def opacity_factor(self, gaussians: GaussianModel) -> Tensor:
+        return self.bell(self.signed_distance(gaussians.params["means"]))
+
+    def loss_names(self) -> tuple[str, ...]:
+        return ("eikonal", "projection", "orientation", "sda")
+
+    def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
+        params = context.gaussians.params
+        count = params["means"].shape[0]
+        pick = torch.randperm(count)[:self.config.samples_per_step]
+        means = params["means"][pick]  # [K, 3] canonical
+        value, gradient = self.value_and_gradient(means)
+        normal = nn.functional.normalize(gradient, dim=1).detach()  # [K, 3]
+        terms: dict[str, Tensor] = {}
+        if "eikonal" in active:
+            terms["eikonal"] = eikonal_loss(gradient)
+        if "projection" in active:
+            terms["projection"] = projection_loss(means, value, normal)
+        if "orientation" in active:
+            terms["orientation"] = orientation_loss(params["quats"][pick],
+                                                    params["log_scales"][pick], normal)
+        if "sda" in active:
+            terms["sda"] = self._sda(context, pick, value)
+        return terms
+
+    def _sda(self, context: RenderContext, pick: Tensor, value: Tensor) -> Tensor:
+        """Eq. 6 over the picked Gaussians whose deformed centre projects onto a tissue pixel
+        with a measured depth."""
+        frame, camera = context.frame, context.camera
+        if frame.depth is None:
+            return value.sum() * 0.0
+        pixel, z = project_points(context.state.means[pick].detach(), camera.K,
+                                  camera.world_to_camera)
+        rows = pixel[:, 1].clamp(0, camera.height - 1)
+        columns = pixel[:, 0].clamp(0, camera.width - 1)
+        measured = frame.depth[rows, columns]
+        seen = (inside_image(pixel, z, camera.width, camera.height) & frame.tissue[rows, columns]
+                & (measured > 0))
+        return sda_loss(value[seen], measured[seen] - z[seen])
+
+
+def tetrahedral_gradient(function, points: Tensor, step: Tensor | float
+                         ) -> tuple[Tensor, Tensor]:
+    """Value [P] and gradient [P, 3] of a scalar field `function` ([P, 3] -> [P]) at points
+    [P, 3] from its samples at the four vertices x + h v_k of a regular tetrahedron:
+    grad f ~ sum_k v_k f(x + h v_k) / (4 h), f(x) ~ their mean (exact for linear fields; the
+    gradient's error is O(h |Hessian|) otherwise, which also smooths the field's finest detail
+    below h). Differentiable in the field's parameters and the points."""
+    vertices = TETRAHEDRON.to(points.dtype)
+    offsets = vertices * step  # [4, 3]
+    samples = function((points[:, None] + offsets).reshape(-1, 3)).view(-1, 4)
+    return samples.mean(dim=1), samples @ vertices / (4.0 * step)
+
+
+def eikonal_loss(gradient: Tensor) -> Tensor:
+    """Mean (|grad f| - 1)^2 over gradients [K, 3] (Eq. 13)."""
+    return (gradient.norm(dim=1) - 1.0).square().mean()
+
+
+def projection_loss(means: Tensor, value: Tensor, normal: Tensor) -> Tensor:
+    """Mean L1 distance between centres [K, 3] and their first-order projections onto the zero
+    level set x - f(x) n (Eq. 7-8; n [K, 3] the unit SDF normal). With f > 0 in front, the
+    projection steps against the normal; |x_proj - x|_1 = |f| |n|_1 either way."""
+    projected = means - value[:, None] * normal
+    return (projected - means).abs().sum(dim=1).mean()
+
+
+def orientation_loss(quats: Tensor, log_scales: Tensor, normal: Tensor) -> Tensor:
+    """Mean squared angle (radians) between each Gaussian's shortest axis and the SDF normal
+    [K, 3], orientation-free (Eq. 9-10). quats [K, 4] (w, x, y, z), log_scales [K, 3]."""
+    rotation = quaternion_to_matrix(nn.functional.normalize(quats, dim=1))  # [K, 3, 3]
+    shortest = log_scales.argmin(dim=1)
+    axis = rotation.gather(2, shortest[:, None, None].expand(-1, 3, 1))[..., 0]  # column [K, 3]
+    cosine = (axis * normal).sum(dim=1).abs().clamp(max=1.0 - 1e-6)
+    return torch.arccos(cosine).square().mean()
+
+
+def sda_loss(value: Tensor, depth_difference: Tensor) -> Tensor:
+    """Eq. 6: the SDF values [K] and the signed depth differences [K] (measured depth minus the
+    centre's depth: > 0 in front of the surface) are each normalised to unit length; the loss is
+    the L1 distance of the two unit vectors divided by sqrt(K), in [0, 2]. 0 when K = 0."""
+    if value.numel() == 0:
+        return value.sum() * 0.0
+    predicted = value / value.norm().clamp_min(1e-12)
+    target = depth_difference / depth_difference.norm().clamp_min(1e-12)
+    return (predicted - target).abs().sum() / math.sqrt(value.numel())
