@@ -21,7 +21,8 @@ def tissue_frame(seed: int) -> np.ndarray:
     """uint8 RGB [H, W, 3]: reddish tissue with smooth shading and darker red vessels."""
     rng = np.random.default_rng(seed)
     ys, xs = np.mgrid[0:HEIGHT, 0:WIDTH]
-    light = 0.55 + 0.35 * np.cos((xs - WIDTH / 2) / WIDTH * 2.0) * np.cos((ys - HEIGHT / 2) / HEIGHT)
+    light = 0.55 + 0.35 * (np.cos((xs - WIDTH / 2) / WIDTH * 2.0)
+                           * np.cos((ys - HEIGHT / 2) / HEIGHT))
     frame = np.stack([200 * light, 80 * light, 70 * light], axis=-1)
     for _ in range(4):  # vessels
         row = rng.integers(10, HEIGHT - 10)
