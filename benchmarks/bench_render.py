@@ -34,6 +34,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from surface_scene import surface_gaussians  # noqa: E402
 
+from surgsplat.atomic import write_text_atomic  # noqa: E402
 from surgsplat.render import native  # noqa: E402
 from surgsplat.render.project import project  # noqa: E402
 from surgsplat.render.rasterize import rasterize  # noqa: E402
@@ -160,6 +161,20 @@ def results_path(benchmark: str, cpu: str) -> Path:
     """benchmarks/results/<benchmark>-<cpu model, lower case, dashes>.json"""
     slug = re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-")
     return RESULTS / f"{benchmark}-{slug}.json"
+
+
+def write_report(benchmark: str, result: dict, out: Path | None) -> Path:
+    """Write `result` with the machine, date and command line as benchmarks/results JSON (to
+    `out`, default results_path); returns the file."""
+    info = native.system_info()
+    report = {"benchmark": benchmark, "cpu": info["cpu"], "system": info,
+              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+              "command": " ".join(["python", f"benchmarks/{benchmark}.py", *sys.argv[1:]]),
+              **result}
+    out = out or results_path(benchmark, info["cpu"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out, json.dumps(report, indent=2) + "\n")
+    return out
 
 
 def main() -> None:

@@ -1,7 +1,8 @@
 """Writes the README's benchmark tables from the benchmark results: every
 benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of README.md, for the
-benchmarks bench_render, bench_threads and bench_outputs, and for every suite of bench_methods
+benchmarks bench_render, bench_threads, bench_outputs, bench_auto_masks and
+bench_shading_depth, and for every suite of bench_methods
 whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
 hand.
 
@@ -119,8 +120,56 @@ def outputs_table(report: dict) -> str:
         f"({row['viewer_gaussians'] // 1000}k Gaussians) | {row['report_seconds']:.1f} s |"])
 
 
+def auto_masks_table(report: dict) -> str:
+    """Markdown for one bench_auto_masks report: tool IoU, precision and recall per split, then
+    the training comparison when the report has one."""
+    lines = [f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
+             f"{report['date'][:10]}, `{report['command']}`:", "",
+             "| frames | IoU | precision | recall | ms per frame |", "|---|---|---|---|---|"]
+    for split in ("tuning", "held_out"):
+        first, last = report["splits"][split]
+        row = report[split]
+        lines.append(f"| {split.replace('_', '-')} {first}-{last} | {row['iou']:.3f} "
+                     f"| {row['precision']:.3f} | {row['recall']:.3f} "
+                     f"| {1000 * report['seconds_per_frame']:.0f} |")
+    if "training" in report:
+        training = report["training"]
+        seeds = training.get("seeds", 1)
+        lines += ["", f"| {training['method']}, {training['iterations']} iterations, mean of "
+                      f"{seeds} seed{'s' if seeds > 1 else ''} | psnr_tissue | ssim |",
+                  "|---|---|---|"]
+        for name, row in training["rows"].items():
+            lines.append(f"| {name} | {cell(row, 'psnr_tissue', '.2f')} "
+                         f"| {cell(row, 'ssim', '.4f')} |")
+    return "\n".join(lines)
+
+
+def shading_depth_table(report: dict) -> str:
+    """Markdown for one bench_shading_depth report: depth accuracy on the phantom and SCARED,
+    then the training comparison when the report has one."""
+    lines = [f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
+             f"{report['date'][:10]}, `{report['command']}`:", "",
+             "| data | rel_clip | rel_frame | Spearman | rel_constant (floor) |",
+             "|---|---|---|---|---|"]
+    for name in ("phantom", "scared"):
+        row = report[name]
+        lines.append(f"| {name} | {row['rel_clip']:.3f} | {row['rel_frame']:.3f} "
+                     f"| {row['spearman']:.3f} | {row['rel_constant']:.3f} |")
+    if "training" in report:
+        training = report["training"]
+        columns = ("psnr_tissue", "chamfer_mm", "p2s_median_mm", "normal_error_deg_median",
+                   "chamfer_ratio_to_no_depth")
+        lines += ["", f"| {training['method']}, {training['iterations']} iterations | "
+                      + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+        for name, row in training["rows"].items():
+            lines.append(f"| {name} | " + " | ".join(cell(row, key, metric_format(key))
+                                                      for key in columns) + " |")
+    return "\n".join(lines)
+
+
 RENDERERS = {"bench_render": render_table, "bench_threads": render_threads_table,
-             "bench_outputs": outputs_table}
+             "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
+             "bench_shading_depth": shading_depth_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A README region of one bench_methods suite, e.g. bench_methods_endoplanar."""
 

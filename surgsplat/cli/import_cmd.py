@@ -13,6 +13,7 @@ from surgsplat.cli.info import print_summary_table
 from surgsplat.cli.progress import progress_bar
 from surgsplat.data.importer import ImportConfig, import_scene
 from surgsplat.data.layout import META_FILE, SceneMeta
+from surgsplat.data.shading_depth import ShadingDepthConfig
 from surgsplat.data.stereo import SGBM_MODES, StereoConfig
 from surgsplat.data.tool_masks import MASK_MATCHES
 from surgsplat.errors import SurgsplatError
@@ -59,9 +60,21 @@ def import_command(
              "file names for a folder, sorted order for a video).")] = "auto",
     allow_missing_masks: Annotated[bool, typer.Option(
         help="Drop frames that have no mask (default: stop with an error).")] = False,
+    auto_tool_masks: Annotated[bool, typer.Option(
+        help="Find the tools (grey metal, black plastic) in every frame automatically, for "
+             "video without --masks; scene.json records that the masks are automatic.")] = False,
     fov_mask: Annotated[bool, typer.Option(
         help="Find the circular field of view (black border) and write it to fov_mask.png, "
              "apart from the tool masks.")] = True,
+    depth: Annotated[str, typer.Option(
+        help="Monocular depth prior: none, or shading (relative depth from the light at the "
+             "camera, I ~ albedo cos / r^2; one unknown scale, train with "
+             "--set components.depth.form=scale_invariant).")] = "none",
+    shading_gamma: Annotated[float, typer.Option(
+        help="Display gamma of the frames for --depth shading (1 = linear).")] = 2.2,
+    shading_median_depth: Annotated[float, typer.Option(
+        help="Median depth of every frame for --depth shading, in scene units (the unknown "
+             "absolute scale; 50 is also the distance training assumes without depth).")] = 50.0,
     right: Annotated[Path | None, typer.Option(
         help="Right-camera video or folder of a stereo pair. Both cameras must be RECTIFIED "
              "(corresponding points on the same row); depth = focal x baseline / "
@@ -105,7 +118,10 @@ def import_command(
     config = ImportConfig(
         pattern=pattern, masks=masks, mask_pattern=mask_pattern,
         tool_labels=parse_labels(tool_labels), mask_match=mask_match,
-        allow_missing_masks=allow_missing_masks, fov_mask=fov_mask, right=right,
+        allow_missing_masks=allow_missing_masks, auto_tool_masks=auto_tool_masks,
+        fov_mask=fov_mask, depth=depth, shading=ShadingDepthConfig(
+            gamma=shading_gamma, median_depth=shading_median_depth),
+        right=right,
         baseline=baseline, disparity_only=disparity_only, depth_unit=depth_unit,
         stereo=StereoConfig(num_disparities=num_disparities, mode=stereo_mode), focal=focal,
         fx=fx, fy=fy, cx=cx, cy=cy, calibration=calibration,
@@ -137,8 +153,12 @@ def print_import_table(scene_dir: Path) -> None:
     fov = extra["fov_mask"]
     table.add_row("field of view", fov if isinstance(fov, str) else
                   f"{fov['kind']}, {100 * fov['inside_share']:.1f}% of pixels inside")
-    if "masks" in extra:
+    if extra.get("masks", {}).get("automatic"):
+        table.add_row("tool masks", "automatic (classical segmenter)")
+    elif "masks" in extra:
         table.add_row("tool labels", str(extra["masks"]["tool_labels"]))
+    if "depth" in extra:
+        table.add_row("depth", f"{extra['depth']['source']} prior: {extra['depth']['scale']}")
     if "stereo" in extra:
         table.add_row("stereo", f"baseline {extra['stereo']['baseline']} "
                                 f"{extra['stereo']['unit']} -> {extra['stereo']['output']}")

@@ -20,6 +20,7 @@ rectified pair; fx and cx scale with the image width, fy and cy with its height.
 
 from __future__ import annotations
 
+import itertools
 import math
 import shutil
 from collections.abc import Callable, Iterator
@@ -29,10 +30,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks
 from surgsplat.data.calibration import read_calibration
 from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
 from surgsplat.data.frames_source import FrameSource, list_frame_files
 from surgsplat.data.layout import Intrinsics, SceneMeta, SceneWriter, frame_stem
+from surgsplat.data.shading_depth import ShadingDepthConfig, shading_depth
 from surgsplat.data.stereo import StereoConfig, disparity_to_depth, stereo_disparity
 from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
 from surgsplat.errors import DataError, SurgsplatError
@@ -45,6 +48,11 @@ DISPARITY_STEPS = 256
 MIN_DEPTH_DISPARITY = 1.0
 """Disparities below this (px) are too far to give a usable depth and are stored as 0 (unknown);
 the deepest stored depth is therefore fx x baseline."""
+DEPTH_SOURCES = ("none", "shading")
+"""Monocular depth priors of --depth: none, or near-light shading (surgsplat.data.shading_depth)."""
+SHADING_DEPTH_UNIT = "relative (shading)"
+"""scene.json depth_unit of shading depth: one unknown scale; train with the scale-invariant
+depth loss."""
 FOV_SAMPLE_FRAMES = 100
 """The field of view is estimated on at most this many of the selected frames, evenly spread."""
 
@@ -69,10 +77,18 @@ class ImportConfig:
     order for videos)."""
     allow_missing_masks: bool = False
     """Drop frames that have no mask instead of stopping with an error."""
+    auto_tool_masks: bool = False
+    """Find the tools in every frame with the classical segmenter (instead of `masks`)."""
+    auto_masks: AutoMaskConfig = field(default_factory=AutoMaskConfig)
+    """Parameters of the automatic tool segmenter."""
     fov_mask: bool = True
     """Find the circular field of view and write it to fov_mask.png (apart from the tool masks)."""
     fov: FovConfig = field(default_factory=FovConfig)
     """How the field of view is found."""
+    depth: str = "none"
+    """Monocular depth prior: one of DEPTH_SOURCES."""
+    shading: ShadingDepthConfig = field(default_factory=ShadingDepthConfig)
+    """Parameters of the shading depth prior (depth "shading")."""
     right: Path | None = None
     """Right-camera video or folder of the rectified stereo pair; None = monocular."""
     baseline: float | None = None
@@ -131,6 +147,10 @@ class ImportConfig:
                                    or self.allow_missing_masks):
             raise SurgsplatError("--tool-labels, --mask-pattern and --allow-missing-masks need "
                                  "--masks")
+        if self.auto_tool_masks:
+            if self.masks is not None:
+                raise SurgsplatError("give either --masks or --auto-tool-masks, not both")
+            self.auto_masks.validate()
         if self.tool_labels is not None and (
                 not self.tool_labels or not all(0 <= v <= 65535 for v in self.tool_labels)):
             raise SurgsplatError(f"--tool-labels must list class IDs in 0..65535, got "
@@ -157,6 +177,14 @@ class ImportConfig:
         return self.focal is not None or self.fx is not None or self.calibration is not None
 
     def _validate_stereo(self) -> None:
+        if self.depth not in DEPTH_SOURCES:
+            raise SurgsplatError(f"unknown --depth {self.depth!r}; expected one of "
+                                 f"{', '.join(DEPTH_SOURCES)}")
+        if self.depth != "none":
+            if self.right is not None:
+                raise SurgsplatError(f"give either --right (stereo depth) or --depth "
+                                     f"{self.depth}, not both")
+            self.shading.validate()
         if self.right is None:
             if self.baseline is not None or self.disparity_only:
                 raise SurgsplatError("--baseline and --disparity-only need --right")
@@ -292,15 +320,25 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         meta.depth_unit = config.depth_unit
         # 16-bit range spans depths up to fx x baseline (disparity MIN_DEPTH_DISPARITY px).
         depth_scale = fx * config.baseline / MIN_DEPTH_DISPARITY / 65535
+    if config.depth == "shading":
+        meta.depth_unit = SHADING_DEPTH_UNIT
+        depth_scale = 4 * config.shading.median_depth / 65535  # up to 4x the median depth
     writer = SceneWriter(out_dir, fx, meta, depth_scale=depth_scale)
     if plan.fov is not None and plan.fov.kind != "full":
         writer.set_fov(plan.fov.inside)
     if config.disparity_only:
         (out_dir / DISPARITY_DIR).mkdir()
-    pairs = _read_pairs(frames, right, plan.selected)
-    for done, (index, image, right_image) in enumerate(pairs, 1):
-        image = fit(image, frames.frame_path(index), frames.frame_label(index))
-        tool = None
+    fitted = ((index, fit(image, frames.frame_path(index), frames.frame_label(index)),
+               right_image) for index, image, right_image in
+              _read_pairs(frames, right, plan.selected))
+    automatic = itertools.repeat(None)
+    if config.auto_tool_masks:
+        # The segmenter looks a few frames ahead; tee holds only those frames.
+        fitted, ahead = itertools.tee(fitted)
+        automatic = auto_tool_masks((image for _, image, _ in ahead),
+                                    plan.fov.inside if plan.fov is not None else None,
+                                    config.auto_masks)
+    for done, ((index, image, right_image), tool) in enumerate(zip(fitted, automatic), 1):
         if plan.mask_of is not None:
             mask_path = plan.mask_of[index]
             tool = fit.mask(read_tool_labels(mask_path, config.tool_labels), mask_path)
@@ -315,6 +353,12 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
             else:
                 disparity[disparity < MIN_DEPTH_DISPARITY] = 0.0
                 depth = disparity_to_depth(disparity, fx, config.baseline)
+        if config.depth == "shading":
+            outside = (~plan.fov.inside if plan.fov is not None and plan.fov.kind != "full"
+                       else np.zeros(image.shape[:2], bool))
+            excluded = outside if tool is None else outside | tool
+            depth = shading_depth(image, plan.intrinsics, excluded, config.shading)
+            depth[depth > 65535 * depth_scale] = 0.0  # beyond the 16-bit range: unknown
         writer.add_frame(image, depth, tool)
         report("import", done, len(plan.selected))
     meta.extra = _provenance(plan, config)
@@ -451,11 +495,19 @@ def _provenance(plan: _Plan, config: ImportConfig) -> dict:
     }
     if config.masks is not None:
         extra["masks"] = {
-            "folder": str(config.masks.resolve()), "pattern": config.mask_pattern,
+            "automatic": False, "folder": str(config.masks.resolve()),
+            "pattern": config.mask_pattern,
             "tool_labels": (list(config.tool_labels) if config.tool_labels is not None
                             else "binary (nonzero = tool)"),
             "matched_by": resolve_mask_match(config.mask_match, frames.is_video),
         }
+    if config.auto_tool_masks:
+        extra["masks"] = {"automatic": True, "segmenter": "surgsplat.data.auto_tool_masks",
+                          "config": config.auto_masks.describe()}
+    if config.depth == "shading":
+        extra["depth"] = {"source": "shading", "config": config.shading.describe(),
+                          "scale": "relative: every frame's median depth is median_depth; train "
+                                   "with --set components.depth.form=scale_invariant"}
     if config.right is not None:
         extra["stereo"] = {
             "right": str(config.right.resolve()), "baseline": config.baseline,

@@ -1,7 +1,7 @@
 """Depth losses against a measured depth map, over tissue pixels that have a measurement.
 
 Depths are float [H, W] in the scene's depth unit (e.g. millimetres); a ground-truth depth of 0
-means "no measurement". Masks are bool [H, W] with True = count the pixel (tissue). Both losses
+means "no measurement". Masks are bool [H, W] with True = count the pixel (tissue). The losses
 average over the counted pixels and are 0 when there is none.
 
 `DepthLoss` is the component that applies one of them to the render's depth map (the expected
@@ -55,12 +55,33 @@ def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,
     return reference * _mean_over((1.0 / safe_pred - 1.0 / safe_gt).abs(), valid, weights)
 
 
+def scale_invariant_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,
+                             weights: Tensor | None = None) -> Tensor:
+    """Mean |log pred - log gt - m| over masked pixels with gt > 0 and pred > 0, m the median
+    of log pred - log gt there: blind to one unknown scale of the measured depth (e.g. a
+    shading prior's), unit-free (about the relative depth error) and robust to outliers;
+    `weights` [H, W] weight each pixel's error."""
+    valid = valid_depth_pixels(pred_depth, gt, mask) & (pred_depth > 0)
+    if not valid.any():
+        return (pred_depth * 0.0).sum()
+    # Invalid pixels get depth 1 before the log, so that no inf or nan enters the graph.
+    log_ratio = (torch.log(torch.where(valid, pred_depth, torch.ones_like(pred_depth)))
+                 - torch.log(torch.where(valid, gt, torch.ones_like(gt))))  # [H, W]
+    return _mean_over((log_ratio - log_ratio[valid].median()).abs(), valid, weights)
+
+
+FORMS = {"l1": depth_l1, "inverse_l1": inverse_depth_l1,
+         "scale_invariant": scale_invariant_depth_l1}
+"""The depth loss of each DepthLossConfig.form."""
+
+
 @dataclass
 class DepthLossConfig(ComponentConfig, kind="depth_loss"):
     """How the rendered depth is compared with the measured depth."""
 
-    form: Literal["l1", "inverse_l1"] = "l1"
-    """L1 on depth, or L1 on inverse depth (EndoPlanar Eq. 9)."""
+    form: Literal["l1", "inverse_l1", "scale_invariant"] = "l1"
+    """L1 on depth, L1 on inverse depth (EndoPlanar Eq. 9), or scale-invariant L1 on log depth
+    (for relative depth such as `surgsplat import --depth shading`)."""
     occlusion_gamma: float = 0.0
     """gamma of Endo-GSG's occlusion importance map weighting each pixel (Eq. 11-12); 0 = every
     tissue pixel weighs 1."""
@@ -88,6 +109,6 @@ class DepthLoss(Component):
         frame, output = context.frame, context.output
         if frame.depth is None:
             return {"depth": output.depth.sum() * 0.0}
-        loss = depth_l1 if self.config.form == "l1" else inverse_depth_l1
         weights = self.importance.weights(frame) if self.config.occlusion_gamma > 0 else None
-        return {"depth": loss(output.depth, frame.depth, frame.tissue, weights)}
+        return {"depth": FORMS[self.config.form](output.depth, frame.depth, frame.tissue,
+                                                 weights)}

@@ -1,9 +1,10 @@
-"""Depth L1 and (median-scaled) inverse-depth L1 over tissue pixels with a measured depth."""
+"""Depth L1, (median-scaled) inverse-depth L1 and scale-invariant log-depth L1 over tissue
+pixels with a measured depth."""
 
 import pytest
 import torch
 
-from surgsplat.losses.depth import depth_l1, inverse_depth_l1
+from surgsplat.losses.depth import depth_l1, inverse_depth_l1, scale_invariant_depth_l1
 
 
 def depths(dtype=torch.float32):
@@ -35,7 +36,7 @@ def test_inverse_depth_l1_skips_unmeasured_and_undrawn_pixels():
     assert pred.grad[2, 2] == 0 and pred.grad[0, 0] == 0 and pred.grad[5, 6] == 0
 
 
-@pytest.mark.parametrize("loss", [depth_l1, inverse_depth_l1])
+@pytest.mark.parametrize("loss", [depth_l1, inverse_depth_l1, scale_invariant_depth_l1])
 def test_excluded_pixels_do_not_change_the_loss(loss):
     pred, gt, mask = depths()
     reference = float(loss(pred, gt, mask))
@@ -43,11 +44,11 @@ def test_excluded_pixels_do_not_change_the_loss(loss):
     pred2[~mask] = 1000.0
     pred2[0, :3] = 5.0  # where gt = 0
     assert float(loss(pred2, gt, mask)) == reference
-    pred2[3, 3] += 1.0
+    pred2[1, 1] += 1.0
     assert float(loss(pred2, gt, mask)) != reference
 
 
-@pytest.mark.parametrize("loss", [depth_l1, inverse_depth_l1])
+@pytest.mark.parametrize("loss", [depth_l1, inverse_depth_l1, scale_invariant_depth_l1])
 def test_gradcheck_and_empty_and_shapes(loss):
     pred, gt, mask = depths(torch.float64)
     pred.requires_grad_(True)
@@ -57,3 +58,14 @@ def test_gradcheck_and_empty_and_shapes(loss):
         loss(pred, gt[:-1], mask[:-1])
     with pytest.raises(ValueError):
         loss(pred, gt, mask.float())
+
+
+def test_scale_invariant_form_ignores_the_scale_of_the_measured_depth():
+    pred, gt, mask = depths()
+    valid = mask & (gt > 0)
+    log_ratio = pred[valid].log() - gt[valid].log()
+    expected = (log_ratio - log_ratio.median()).abs().mean()
+    torch.testing.assert_close(scale_invariant_depth_l1(pred, gt, mask), expected)
+    torch.testing.assert_close(scale_invariant_depth_l1(pred, 7.5 * gt, mask), expected)
+    assert float(scale_invariant_depth_l1(0.02 * gt, gt, mask)) < 1e-6
+    assert float(scale_invariant_depth_l1(pred, gt, mask)) > 0.05
