@@ -17,11 +17,13 @@
   `output.extras["reflectance"]` [H, W, 3].
 - Embedding cache and Eq. 5: the UNet runs only in training steps (module in training mode and
   gradients on) on training frames; each run stores its e_t in the buffer `embeddings` [F, E]
-  (and, in Stage 2, its L_t in `illumination_maps` [F, h, w]). Every other render (evaluation,
-  videos, test frames) takes e_t and L_t linearly interpolated between the two nearest training
-  times (Eq. 5), with no UNet inference; such renders also carry the upsampled L_t as
-  `output.extras["illumination"]` [H, W, 1]. Before Stage 2 has run on a frame its cached map
-  is 1 (uniform light).
+  (and, in Stage 2, its L_t in `illumination_maps` [F, h, w]). Switching the module to
+  evaluation mode (`eval()`, as a loaded run is) recomputes both caches for every training frame
+  with the final UNet, once, so that no entry is left from an earlier state of the network.
+  Every other render (evaluation, videos, test frames) takes e_t and L_t linearly interpolated
+  between the two nearest training times (Eq. 5), with no UNet inference; such renders also
+  carry the upsampled L_t as `output.extras["illumination"]` [H, W, 1]. A frame whose map Stage 2
+  never computed keeps the map 1 (uniform light).
 - Losses "retinex" (Eq. 7) and "bright_channel" (Eq. 8), see losses/retinex.py. Stage 2 is
   these two terms' `start_iter` in the method config; before it the decoder never runs (Stage 1:
   "illumination is not explicitly predicted; only e_t modulates appearance").
@@ -152,6 +154,7 @@ class LumiState(Component):
         self.register_buffer("embeddings", torch.zeros(frames, config.embedding_dim))  # [F, E]
         self.register_buffer("illumination_maps", torch.ones(frames, height, width))  # [F, h, w]
         self.register_buffer("known", torch.zeros(frames, dtype=torch.bool))  # training frames
+        self.register_buffer("mapped", torch.zeros(frames, dtype=torch.bool))  # Stage 2 saw it
         self.register_buffer("centre", torch.zeros(3))  # initial points' centroid
         self.register_buffer("extent", torch.ones(()))  # their largest distance from it
         self.relight_source: str | int | None = None
@@ -164,9 +167,24 @@ class LumiState(Component):
         for frame in context.frames:
             self.known[frame.index] = True
             self.brightness[frame.index] = self.downsample(brightness(frame.image))
-        with torch.no_grad():
-            index = self.known.nonzero()[:, 0]
-            self.embeddings[index] = self.unet.encode(self.brightness[index])[1]
+        self.refresh_caches()
+
+    def train(self, mode: bool = True) -> "LumiState":
+        """nn.Module.train; leaving training mode refreshes the caches (module docstring)."""
+        if self.training and not mode:
+            self.refresh_caches()
+        return super().train(mode)
+
+    @torch.no_grad()
+    def refresh_caches(self) -> None:
+        """Recompute e_t of every training frame, and L_t of those Stage 2 has seen, with the
+        current UNet."""
+        index = self.known.nonzero()[:, 0]
+        features, embeddings = self.unet.encode(self.brightness[index])
+        self.embeddings[index] = embeddings
+        mapped = self.mapped[index]
+        if mapped.any():
+            self.illumination_maps[index[mapped]] = self.unet.decode(features)[mapped]
 
     def downsample(self, image_map: Tensor) -> Tensor:
         """[H, W] full-resolution map -> [h, w] (area average)."""
@@ -266,6 +284,7 @@ class LumiState(Component):
         low = self.unet.decode(features)[0]  # [h, w]
         if self.known[index]:
             self.illumination_maps[index] = low.detach()
+            self.mapped[index] = True
         illumination = self.upsample(low, frame.image.shape[0], frame.image.shape[1])
         terms = {}
         if "retinex" in active:

@@ -3,11 +3,13 @@
 import json
 
 import numpy as np
+import pytest
 
 from surgsplat.data.phantom import PhantomConfig, generate_phantom
 from surgsplat.data.scene import read_image
 
 
+@pytest.mark.slow
 def test_hivar_light_varies_and_the_shading_explains_the_images(tmp_path, small_phantom,
                                                                  cli, one_error_line):
     root = generate_phantom(PhantomConfig(preset="small", lighting="hivar"), tmp_path / "hivar")
