@@ -132,3 +132,8 @@ def test_decomposition_scores_are_scale_free_and_catch_leaking_light(small_phant
     assert baseline["reflectance_error"] > 0.02 and baseline["r_var"] > 1e-3
     assert baseline["decomposition_source"].startswith("rendered colour")
     assert "shading_error" not in scores  # the standard phantom has no gt/shading
+
+
+def test_render_options_are_checked_at_the_boundary(tmp_path, cli, one_error_line):
+    line = one_error_line(cli("render", str(tmp_path), "--channels", "rgb,albedo"))
+    assert "--channels" in line and "reflectance" in line
