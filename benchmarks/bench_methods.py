@@ -20,6 +20,14 @@ Suite `endoplanar` (issue 9): deform3dgs; endoplanar without its normal loss; en
 deform3dgs on the moving-camera phantom with known poses. Targets: endoplanar psnr_tissue >= 38
 dB, median normal error <= 5 deg, depth_rmse_mm no worse than deform3dgs, training time within
 15% of deform3dgs; the moving-camera run psnr_tissue >= 35 dB.
+
+Suite `lumistate` (issue 15): deform3dgs (whose exposure curve is the exposure-only model) and
+lumistate on the livar and hivar phantoms, and lumistate on hivar with Stage 1 only (Retinex and
+bright-channel losses off); ratios against deform3dgs on the same phantom. Stage 2 starts at
+iteration LUMISTATE_STAGE2_ITER, a third of the --iters 400 the suite is run with. Targets
+(hivar): lumistate psnr_tissue >= deform3dgs + 1 dB, reflectance_error and r_var <= 0.5 x
+deform3dgs's (the naive baseline: its rendered colour scored as reflectance); livar: no PSNR
+loss over 0.3 dB; training time <= 1.5 x deform3dgs.
 """
 
 from __future__ import annotations
@@ -58,7 +66,14 @@ class Case:
 
 PHANTOMS = {"pulling": ("--preset", "full", "--motion", "pulling"),
             "pulling-moving-camera": ("--preset", "full", "--motion", "pulling",
-                                      "--camera", "moving")}
+                                      "--camera", "moving"),
+            "livar": ("--preset", "full", "--motion", "pulling", "--lighting", "livar"),
+            "hivar": ("--preset", "full", "--motion", "pulling", "--lighting", "hivar")}
+LUMISTATE_STAGE2_ITER = 133
+"""Stage 2 start of the lumistate suite's runs (a third of its --iters 400)."""
+LUMISTATE_STAGES = tuple(f"losses.{term}.start_iter={LUMISTATE_STAGE2_ITER}"
+                         for term in ("retinex", "bright_channel"))
+STAGE1_ONLY = ("losses.retinex.weight=0", "losses.bright_channel.weight=0")
 
 
 @dataclass(frozen=True)
@@ -69,6 +84,7 @@ class Suite:
     metrics: tuple[str, ...]  # keys of metrics.json shown, in order
     baseline: str  # name of the case ratios are taken against
     ratio_metrics: tuple[str, ...] = ()  # metrics also reported as <key>_ratio to the baseline
+    baseline_by_phantom: bool = False  # ratios against the baseline's method on each row's phantom
 
 
 SUITES = {
@@ -100,6 +116,18 @@ SUITES = {
                  "mesh_largest_hole_cells", "mesh_export_seconds", "psnr_tissue",
                  "psnr_occluded", "depth_rmse_mm"),
         baseline="deform3dgs", ratio_metrics=("gaussians_p2s_mean_mm",)),
+    "lumistate": Suite(
+        cases=(
+            Case("deform3dgs-livar", "deform3dgs", "livar"),
+            Case("lumistate-livar", "lumistate", "livar", LUMISTATE_STAGES),
+            Case("deform3dgs-hivar", "deform3dgs", "hivar"),
+            Case("lumistate-hivar", "lumistate", "hivar", LUMISTATE_STAGES),
+            Case("lumistate-hivar-stage1-only", "lumistate", "hivar", STAGE1_ONLY),
+        ),
+        metrics=("psnr_tissue", "psnr_tissue_gain", "ssim", "reflectance_error",
+                 "reflectance_error_ratio", "r_var", "r_var_ratio", "shading_error"),
+        baseline="deform3dgs-hivar", ratio_metrics=("reflectance_error", "r_var"),
+        baseline_by_phantom=True),
 }
 
 
@@ -139,13 +167,25 @@ def run_case(case: Case, work: Path, iterations: int | None) -> dict:
     return row
 
 
+def baseline_row(rows: list[dict], row: dict, suite: Suite) -> dict | None:
+    """The row `row` is compared with: the suite's baseline case, or with baseline_by_phantom
+    the baseline's method on `row`'s phantom."""
+    base = next((r for r in rows if r["case"] == suite.baseline), None)
+    if base is not None and suite.baseline_by_phantom:
+        base = next((r for r in rows if r["method"] == base["method"]
+                     and r["phantom"] == row["phantom"] and not r["settings"]), None)
+    return base
+
+
 def add_ratios(rows: list[dict], suite: Suite) -> None:
-    """Train time and the suite's ratio metrics of each row, as ratios to its baseline row."""
-    base = next((row for row in rows if row["case"] == suite.baseline), None)
-    if base is None:
-        return
+    """Train time and the suite's ratio metrics of each row, as ratios to its baseline row, and
+    the PSNR gain over it (dB)."""
     for row in rows:
+        base = baseline_row(rows, row, suite)
+        if base is None:
+            continue
         row["train_time_ratio"] = round(row["train_seconds"] / base["train_seconds"], 3)
+        row["psnr_tissue_gain"] = round(row["psnr_tissue"] - base["psnr_tissue"], 3)
         for key in suite.ratio_metrics:
             if row.get(key) is not None and base.get(key):
                 row[f"{key.removesuffix('_mm')}_ratio"] = round(row[key] / base[key], 3)

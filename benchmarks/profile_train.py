@@ -3,7 +3,7 @@ frames of the main thread, waiting included) and sums the samples by part of the
 
     pip install py-spy
     python benchmarks/profile_train.py --data PHANTOM [--method deform3dgs] [--iters 100]
-                                       [--rate 200] [--out FILE]
+                                       [--rate 200] [--out FILE] [--set KEY=VALUE ...]
 
 Only the main thread's samples count (OpenMP workers and other threads only wait for it or work
 for it). A sample counts for the first category (in the order of CATEGORIES) one of whose
@@ -32,6 +32,9 @@ CATEGORIES = {  # name: stack markers, most specific first
     "rasterize (native fwd+bwd)": ("rasterize_forward", "rasterize_backward", "_NativeRasterize"),
     "projection": ("project_forward", "project_backward", "render/project.py"),
     "D-SSIM": ("ssim_forward", "ssim_backward", "eval/ssim.py", "image/ssim.py"),
+    "illumination UNet (LumiState)": ("fields/illumination.py", "convolution_backward",
+                                       "max_pool2d_with_indices_backward"),
+    "SH modulation MLP (LumiState)": ("model/lumistate.py",),
     "deformation field": ("hexplane", "gaussian_basis.py", "fields/"),
     "Adam": ("optim/adam.py", "_fused_adam", "optim/optimizer.py"),
     "densify / prune": ("strategy.py",),
@@ -64,13 +67,16 @@ def main() -> None:
     parser.add_argument("--step-marker", default="Trainer.step",
                         help="a frame every stack inside a training step has")
     parser.add_argument("--out", type=Path)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a setting of the method, as `surgsplat train --set`")
     args = parser.parse_args()
     py_spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
     with tempfile.TemporaryDirectory() as tmp:
         raw = Path(tmp) / "samples.txt"
         command = [sys.executable, "-m", "surgsplat.cli.main", "train", "--method", args.method,
                    "--data", str(args.data), "--out", str(Path(tmp) / "run"),
-                   "--iters", str(args.iters)]
+                   "--iters", str(args.iters),
+                   *(arg for setting in args.set for arg in ("--set", setting))]
         subprocess.run([py_spy, "record", "--native", "--idle", "--format", "raw", "--rate",
                         str(args.rate), "--output", str(raw), "--", *command], check=True,
                        capture_output=True)
@@ -83,7 +89,8 @@ def main() -> None:
     info = native.system_info()
     report = {"benchmark": "profile_train", "cpu": info["cpu"], "system": info,
               "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-              "command": f"surgsplat train --method {args.method} --iters {args.iters}",
+              "command": f"surgsplat train --method {args.method} --iters {args.iters}"
+                         + "".join(f" --set {setting}" for setting in args.set),
               "data": args.data.name, "samples": sum(stacks.values()),
               "step_samples": sum(in_steps.values()),
               "shares_whole_run": categorise(stacks), "shares_in_steps": categorise(in_steps)}

@@ -83,6 +83,8 @@ def metric_format(key: str) -> str:
         return ".3f"
     if key.endswith(("seconds", "rss_mb")):
         return ".0f"
+    if key in ("r_var", "reflectance_error", "shading_error"):
+        return ".4f"
     return ".2f"
 
 

@@ -15,6 +15,7 @@ from surgsplat.data.phantom.camera_path import CAMERAS
 from surgsplat.data.phantom.generate import (PRESETS, PhantomConfig, check_phantom_request,
                                              generate_phantom)
 from surgsplat.data.phantom.motion import MOTIONS
+from surgsplat.data.phantom.shading import LIGHTINGS
 
 
 def phantom_command(
@@ -27,14 +28,18 @@ def phantom_command(
     seed: Annotated[int, typer.Option(help="Seed of texture, shape and tool path.")] = 0,
     frames: Annotated[int | None, typer.Option(help="Number of frames (preset default if "
                                                      "omitted).")] = None,
+    lighting: Annotated[str, typer.Option(
+        help=f"Light over the clip: {', '.join(LIGHTINGS)} (livar: the standard light with the "
+             "true shading in gt/shading; hivar: light intensity and exposure each vary over "
+             "2x and the light circles off the camera centre).")] = "standard",
 ) -> None:
     """Ray-cast a synthetic deforming tissue with a tool, with ground truth under gt/."""
     start = time.perf_counter()
     config = PhantomConfig(preset=preset, motion=motion, camera=camera, seed=seed,
-                           num_frames=frames)
+                           num_frames=frames, lighting=lighting)
     _, num_frames = check_phantom_request(config, out)
     with progress_bar() as bar:
-        task = bar.add_task(f"phantom {preset} {motion} {camera}", total=num_frames)
+        task = bar.add_task(f"phantom {preset} {motion} {camera} {lighting}", total=num_frames)
 
         def report(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)

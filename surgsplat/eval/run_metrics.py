@@ -7,7 +7,8 @@ reconstructed surface: the rendered depth back-projected over tissue pixels with
 camera into the world frame; and normals against the ground-truth camera-space normals
 (gt/normals/<frame>.npy). What the tool hid is scored where the phantom has it: over the tool
 pixels (inside the field of view) of each test frame, the render against the tissue-only image
-(gt/tissue_images) and depth (gt/tissue_depth).
+(gt/tissue_images) and depth (gt/tissue_depth). Where the phantom has gt/albedo (and
+gt/shading), the reflectance x illumination decomposition is scored (see decomposition.py).
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ from surgsplat.data.phantom.generate import TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
 from surgsplat.data.scene import Camera, Frame, read_image, read_npy
 from surgsplat.eval.geometry_metrics import (depth_rmse, geometry_metrics, point_to_surface,
                                              sample_surface)
+from surgsplat.eval.decomposition import (CONVENTIONS as DECOMPOSITION_CONVENTIONS,
+                                         DecompositionScores)
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
 from surgsplat.eval.normals import normal_angle_deg, surface_normals
@@ -72,6 +75,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     normal_source = None
     render_seconds = 0.0
     meshes = MeshExtractor(run.model, background=background) if options.geometry else None
+    decomposition = DecompositionScores()
     for frame in frames:
         started = time.perf_counter()
         out = render_frame(run.model, frame.camera, FrameTime(frame.index, frame.time), background)
@@ -83,6 +87,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
             if valid.any():
                 row["depth_rmse"] = depth_rmse(out.depth, frame.depth, frame.tissue)
         row.update(occluded_row(out.rgb.clamp(0, 1), out.depth, frame, scene.root))
+        decomposition.add(frame, out.extras, out.rgb, scene.root)
         gt_mesh = mesh_path(scene.root, frame.index)
         if options.geometry and gt_mesh.is_file():
             gt_vertices, gt_faces = read_ply_mesh(gt_mesh)
@@ -110,6 +115,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         metrics["normal_error_deg_mean"] = float(pooled.mean())
         metrics["normal_error_deg_median"] = float(pooled.median())
         metrics["normal_source"] = normal_source
+    metrics.update(decomposition.metrics())
     unit = scene.depth_unit
     for key in ("depth_rmse", "depth_rmse_occluded"):
         if key in metrics:
@@ -145,6 +151,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
                             "orientation-free, pooled over the tissue pixels of all test frames",
         "fps": "rendering the test frames, this machine",
         "peak_rss_mb": "peak resident memory of the training process",
+        **DECOMPOSITION_CONVENTIONS,
     }
     return metrics
 

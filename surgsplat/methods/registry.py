@@ -20,6 +20,7 @@ from surgsplat.methods.settings import LossWeight
 from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig
 from surgsplat.model.init_points import InitConfig
+from surgsplat.model.lumistate import LumiStateConfig
 from surgsplat.model.planar import PlanarConfig
 
 
@@ -84,6 +85,25 @@ def endogsg() -> MethodConfig:
         init=InitConfig(fusion="mapf"))
 
 
+LUMISTATE_STAGE2_ITER = 1000
+"""Iteration at which LumiState's Stage 2 (Retinex and bright-channel losses) starts: a third of
+the default 3000, once geometry and reflectance have settled under the photometric loss."""
+
+
+def lumistate() -> MethodConfig:
+    """Deform3DGS's Gaussian-basis deformation, so that the decomposition is the only difference
+    from the deform3dgs baseline; no exposure curve, whose per-time gain the SH modulation
+    contains (exp(sigma_i) equal for every Gaussian) and would make ambiguous."""
+    return MethodConfig(
+        name="lumistate",
+        components={"deformation": GaussianBasisConfig(), "lumistate": LumiStateConfig(),
+                    "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05),
+                "retinex": LossWeight(0.05, start_iter=LUMISTATE_STAGE2_ITER),
+                "bright_channel": LossWeight(0.25, start_iter=LUMISTATE_STAGE2_ITER)},
+        init=InitConfig(fusion="mapf"))
+
+
 PRESETS: dict[str, Preset] = {
     "deform3dgs": Preset("Deform3DGS baseline: per-Gaussian Gaussian-basis deformation, "
                          "motion-aware point fusion, L1 + D-SSIM and depth L1", deform3dgs),
@@ -94,6 +114,9 @@ PRESETS: dict[str, Preset] = {
     "endogsg": Preset("Endo-GSG: HexPlane deformation, canonical neural SDF giving each Gaussian "
                       "its opacity, SDA / projection / orientation / Eikonal losses, occlusion "
                       "importance map", endogsg),
+    "lumistate": Preset("LumiState: reflectance x illumination (UNet on max(R,G,B), per-Gaussian "
+                        "SH modulation from its embedding, Retinex and bright-channel losses "
+                        "in Stage 2), Gaussian-basis deformation", lumistate),
 }
 
 

@@ -31,6 +31,14 @@ class RenderOutput:
     extras: dict[str, Tensor] = field(default_factory=dict)  # name -> [H, W, k], alpha-blended
 
 
+def view_directions(means: Tensor, world_to_camera: Tensor | None = None) -> Tensor:
+    """[N, 3] unit directions from the camera centre to the means [N, 3] (world frame), the
+    directions at which spherical-harmonic colour is evaluated."""
+    w2c = torch.eye(4, dtype=means.dtype) if world_to_camera is None else world_to_camera
+    camera_centre = -w2c[:3, :3].T @ w2c[:3, 3]
+    return torch.nn.functional.normalize(means - camera_centre, dim=-1)
+
+
 def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colors: Tensor,
            K: Tensor, width: int, height: int, world_to_camera: Tensor | None = None,
            sh_degree: int | None = None, extras: dict[str, Tensor] | None = None,
@@ -49,10 +57,7 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
     if sh_degree is None:
         rgb = colors
     else:
-        w2c = torch.eye(4, dtype=means.dtype) if world_to_camera is None else world_to_camera
-        camera_centre = -w2c[:3, :3].T @ w2c[:3, 3]
-        dirs = torch.nn.functional.normalize(means - camera_centre, dim=-1)
-        rgb = eval_sh(sh_degree, colors, dirs)
+        rgb = eval_sh(sh_degree, colors, view_directions(means, world_to_camera))
     channels = [rgb, projection.depths[:, None]]
     extras = extras or {}
     for value in extras.values():

@@ -11,6 +11,9 @@ poses_bounds.npy (each frame's endoscope pose) and scene.json, the folder holds 
     gt/normals/{stem}.npy        float32 [H, W, 3] unit tissue normals in frame i's camera space
     gt/meshes/{stem}.ply         the tissue surface at time i / N, world frame, mm (binary PLY)
     gt/exposure.json             list of the per-frame exposure factors
+    gt/shading/{stem}.npy        float32 [H, W] true tissue shading (with --lighting livar or
+                                 hivar): tissue_images = albedo * shading + specular, clipped
+    gt/light_intensity.json      list of the per-frame light intensities (same lightings)
     gt/camera_poses.npy          float64 [N, 4, 4] OpenCV world-to-camera of every frame
 
 The world frame is the first frame's camera frame (see `camera_path`), so for the default
@@ -34,7 +37,7 @@ from surgsplat.data.phantom.camera_path import CAMERAS
 from surgsplat.data.phantom.mesh import grid_mesh
 from surgsplat.data.phantom.motion import MOTIONS
 from surgsplat.data.phantom.scene import PhantomScene
-from surgsplat.data.phantom.shading import METAL, WET_TISSUE
+from surgsplat.data.phantom.shading import LIGHTINGS, METAL, WET_TISSUE
 from surgsplat.data.ply import write_ply_mesh
 from surgsplat.errors import SurgsplatError
 
@@ -45,6 +48,8 @@ ALBEDO_DIR = f"{GT_DIR}/albedo"
 NORMALS_DIR = f"{GT_DIR}/normals"
 MESHES_DIR = f"{GT_DIR}/meshes"
 EXPOSURE_FILE = f"{GT_DIR}/exposure.json"
+SHADING_DIR = f"{GT_DIR}/shading"
+LIGHT_INTENSITY_FILE = f"{GT_DIR}/light_intensity.json"
 CAMERA_POSES_FILE = f"{GT_DIR}/camera_poses.npy"
 
 
@@ -87,6 +92,9 @@ class PhantomConfig:
     """Seed of the texture, surface shape and tool path; equal seeds give identical files."""
     num_frames: int | None = None
     """Number of frames; None = the preset's default."""
+    lighting: str = "standard"
+    """Light over the clip (see shading.LIGHTINGS): "standard", "livar" (the same light, with
+    gt/shading) or "hivar" (intensity and exposure vary > 2x, light off the camera centre)."""
 
 
 def check_phantom_request(config: PhantomConfig, out_dir: Path) -> tuple[PhantomPreset, int]:
@@ -101,6 +109,9 @@ def check_phantom_request(config: PhantomConfig, out_dir: Path) -> tuple[Phantom
     if config.camera not in CAMERAS:
         raise SurgsplatError(f"unknown phantom camera {config.camera!r}; valid cameras: "
                              f"{', '.join(CAMERAS)}")
+    if config.lighting not in LIGHTINGS:
+        raise SurgsplatError(f"unknown phantom lighting {config.lighting!r}; valid lightings: "
+                             f"{', '.join(LIGHTINGS)}")
     preset = PRESETS[config.preset]
     num_frames = preset.num_frames if config.num_frames is None else config.num_frames
     if num_frames < 1:
@@ -137,14 +148,17 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
     """Render every frame and its ground truth into `out_dir`."""
 
     scene = PhantomScene(preset.width, preset.height, preset.focal, num_frames, config.motion,
-                         config.seed, config.camera)
+                         config.seed, config.camera, config.lighting)
     meta = SceneMeta(depth_unit="mm", source=f"phantom {config.preset} {config.motion} "
                                              f"seed {config.seed}",
                      extra=_extra(config, preset, num_frames, scene))
     writer = SceneWriter(out_dir, focal=preset.focal, meta=meta)
     for sub in (TISSUE_IMAGES_DIR, TISSUE_DEPTH_DIR, ALBEDO_DIR, NORMALS_DIR, MESHES_DIR):
         (out_dir / sub).mkdir(parents=True, exist_ok=True)
-    exposures, poses = [], []
+    writes_shading = scene.lighting.writes_shading
+    if writes_shading:
+        (out_dir / SHADING_DIR).mkdir(parents=True, exist_ok=True)
+    exposures, intensities, poses = [], [], []
     for index in range(num_frames):
         frame = scene.render(index)
         writer.add_frame(frame.image, frame.depth, frame.tool_mask, frame.world_to_camera)
@@ -153,16 +167,21 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
         _write_rgb(out_dir / ALBEDO_DIR / f"{stem}.png", frame.albedo)
         np.save(out_dir / TISSUE_DEPTH_DIR / f"{stem}.npy", frame.tissue_depth)
         np.save(out_dir / NORMALS_DIR / f"{stem}.npy", frame.normals)
+        if writes_shading:
+            np.save(out_dir / SHADING_DIR / f"{stem}.npy", frame.shading)
         vertices, faces, colors = grid_mesh(frame.tissue_depth, scene.xn, scene.yn,
                                             preset.mesh_step, frame.albedo)  # camera space
         camera_to_world = scene.camera_path.camera_to_world(scene.time(index))
         vertices = vertices @ camera_to_world[:3, :3].T + camera_to_world[:3, 3]
         write_ply_mesh(out_dir / MESHES_DIR / f"{stem}.ply", vertices, faces, colors)
         exposures.append(frame.exposure)
+        intensities.append(frame.light_intensity)
         poses.append(frame.world_to_camera)
         if progress is not None:
             progress(index + 1, num_frames)
     (out_dir / EXPOSURE_FILE).write_text(json.dumps(exposures) + "\n")
+    if writes_shading:
+        (out_dir / LIGHT_INTENSITY_FILE).write_text(json.dumps(intensities) + "\n")
     np.save(out_dir / CAMERA_POSES_FILE, np.stack(poses))
     writer.finish()
 
@@ -176,7 +195,7 @@ def _write_rgb(path: Path, image: np.ndarray) -> None:
 def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
            scene: PhantomScene) -> dict:
     """Facts about the phantom for scene.json."""
-    return {
+    extra = {
         "preset": config.preset, "motion": config.motion, "camera": config.camera,
         "camera_path": asdict(scene.camera_path), "seed": config.seed,
         "num_frames": num_frames, "width": preset.width, "height": preset.height,
@@ -190,3 +209,7 @@ def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
                "depth_unit": "mm", "frames": "depth and normals: per-frame camera space; "
                                              "meshes: world frame (= frame 0's camera)"},
     }
+    if scene.lighting.writes_shading:  # the standard phantom's scene.json stays as it was
+        extra["lighting"] = asdict(scene.lighting)
+        extra["gt"].update(shading=SHADING_DIR, light_intensity=LIGHT_INTENSITY_FILE)
+    return extra

@@ -7,6 +7,7 @@ pixel (depth, normals, shading with the light at the camera) is in that frame's 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,8 +15,8 @@ import numpy as np
 from surgsplat.data.phantom.camera_path import camera_path
 from surgsplat.data.phantom.motion import motion_program
 from surgsplat.data.phantom.raycast import intersect_surface, pixel_rays
-from surgsplat.data.phantom.shading import (JAW_RGB, METAL, SHAFT_RGB, WET_TISSUE, Exposure,
-                                            Light, shade)
+from surgsplat.data.phantom.shading import (JAW_RGB, LIGHTINGS, METAL, SHAFT_RGB, WET_TISSUE,
+                                            Exposure, Light, diffuse_shading, shade)
 from surgsplat.data.phantom.surface import BASE_DEPTH_MM, TissueSurface
 from surgsplat.data.phantom.texture import CUT_RGB, TissueTexture
 from surgsplat.data.phantom.tool import JAW, ToolGeometry, ToolPose, intersect_tool
@@ -47,13 +48,16 @@ class PhantomFrame:
     tool_mask: np.ndarray  # [H, W] bool: True where the tool is nearer than the tissue
     exposure: float  # the frame's exposure factor
     world_to_camera: np.ndarray  # [4, 4] float64: the frame's endoscope pose
+    shading: np.ndarray  # [H, W] float32: the tissue's true shading (tissue_image = albedo *
+    # shading + specular, before the clip to [0, 1])
+    light_intensity: float  # the light's intensity at the reference distance this frame
 
 
 class PhantomScene:
     """A deterministic phantom of `num_frames` frames at `width` x `height` pixels."""
 
     def __init__(self, width: int, height: int, focal: float, num_frames: int, motion: str,
-                 seed: int, camera: str = "static"):
+                 seed: int, camera: str = "static", lighting: str = "standard"):
         self.width, self.height, self.focal = width, height, float(focal)
         self.num_frames = num_frames
         self.motion = motion_program(motion)
@@ -61,14 +65,18 @@ class PhantomScene:
         self.surface = TissueSurface(seed, self.motion)
         self.texture = TissueTexture(seed, BASE_DEPTH_MM / self.focal / TEXELS_PER_PIXEL)
         self.geometry = ToolGeometry()
-        self.light = Light()
+        self.lighting = LIGHTINGS[lighting]
+        self.light = Light(intensity=self.lighting.intensity)
         rng = np.random.default_rng([seed, 3])
-        self.exposure = Exposure(phase=float(rng.uniform(0.0, 2 * np.pi)))
+        self.exposure = Exposure(amplitude=self.lighting.exposure_amplitude,
+                                 phase=float(rng.uniform(0.0, 2 * np.pi)))
         trocar_angle = rng.uniform(np.radians(-160.0), np.radians(-20.0))  # upper half of view
         self.trocar = np.array([TROCAR_DISTANCE_MM * np.cos(trocar_angle),
                                 TROCAR_DISTANCE_MM * np.sin(trocar_angle), TROCAR_DEPTH_MM])
         self.roll = float(rng.uniform(np.radians(-40.0), np.radians(40.0)))
         self.xn, self.yn = pixel_rays(width, height, focal)  # [H, W] each
+        self.light_phase, self.light_angle = np.random.default_rng([seed, 5]).uniform(
+            0.0, 2 * np.pi, size=2)  # the lighting program's intensity phase and start angle
 
     def time(self, index: int) -> float:
         """Time of frame `index`: index / number of frames."""
@@ -115,6 +123,7 @@ class PhantomScene:
         """Ray-cast frame `index`: tissue, tool, nearest hit, shading and exposure."""
         t = self.time(index)
         exposure = self.exposure.factor(t)
+        light, light_position = self.light_at(t)
         world_to_camera = self.world_to_camera(index)
         centre, directions = self.world_rays(index)
         tissue_depth = intersect_surface(self.surface, t, centre, directions)  # [H, W]
@@ -126,7 +135,8 @@ class PhantomScene:
         albedo = self.texture.sample(*self.surface.material(x, y, t)).astype(np.float64)
         cut = CUT_ALBEDO_WEIGHT * self.surface.opening(x, y, t)[..., None]
         albedo = albedo + (CUT_RGB - albedo) * cut
-        tissue_image = shade(points, normals, albedo, WET_TISSUE, self.light, exposure)
+        tissue_image = shade(points, normals, albedo, WET_TISSUE, light, exposure, light_position)
+        shading = diffuse_shading(points, normals, WET_TISSUE, light, exposure, light_position)
 
         hit = intersect_tool(self.geometry, self.camera_tool_pose(index), self.xn, self.yn)
         tool_mask = hit.depth < tissue_depth
@@ -138,11 +148,19 @@ class PhantomScene:
                 [self.xn[tool_mask], self.yn[tool_mask], np.ones_like(tool_depth)], axis=-1)
             tool_albedo = np.where((hit.part[tool_mask] == JAW)[:, None], JAW_RGB, SHAFT_RGB)
             image[tool_mask] = shade(tool_points, hit.normal[tool_mask], tool_albedo, METAL,
-                                     self.light, exposure)
+                                     light, exposure, light_position)
             depth[tool_mask] = tool_depth
         return PhantomFrame(
             image=np.clip(image, 0.0, 1.0).astype(np.float32),
             tissue_image=np.clip(tissue_image, 0.0, 1.0).astype(np.float32),
             depth=depth.astype(np.float32), tissue_depth=tissue_depth.astype(np.float32),
             albedo=albedo.astype(np.float32), normals=normals.astype(np.float32),
-            tool_mask=tool_mask, exposure=exposure, world_to_camera=world_to_camera)
+            tool_mask=tool_mask, exposure=exposure, world_to_camera=world_to_camera,
+            shading=shading.astype(np.float32), light_intensity=light.intensity)
+
+    def light_at(self, t: float) -> tuple[Light, np.ndarray | None]:
+        """The light at time t and its camera-space position [3] mm (None = camera centre)."""
+        factor = self.lighting.intensity_factor(t, self.light_phase)
+        light = self.light if factor == 1.0 else dataclasses.replace(
+            self.light, intensity=self.light.intensity * factor)
+        return light, self.lighting.light_position(t, self.light_angle)

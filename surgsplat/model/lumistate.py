@@ -1,0 +1,309 @@
+"""LumiState's reflectance x illumination decomposition as a component (`lumistate.txt` Section 2).
+
+- Illumination estimation (Eq. 2-3): an `IlluminationUNet` on each training frame's brightness
+  S_t = max(R, G, B), stored downsampled in the buffer `brightness` [F, h, w] at setup, so that
+  checkpoints and resumed runs keep it. Its bottleneck gives the embedding e_t and its decoder
+  the illumination map L_t [h, w] in [0, 1], upsampled bilinearly to the frame.
+- Illumination-decoupled rendering (Eq. 4): `transform` modulates every Gaussian's SH
+  coefficients c_i (degree 0 up to `sh_degree`) with c'_i = c_i exp(sigma_i) + delta_i / Y0,
+  sigma_i and delta_i [K, 3] predicted by a 4-layer fusion MLP from e_t and the sinusoidal
+  encoding of the Gaussian's deformed position (normalised by the initial point cloud's centre
+  and extent). The position is what makes the modulation vary across the tissue, i.e. what
+  models the near-field attenuation (Section 2.1). Eq. 4 acts on the colour the coefficients
+  represent, the SH convention's +0.5 included, so that exp(sigma) scales the reflectance colour
+  itself. sigma is bounded to +-`max_log_gain` (a tanh) and the MLP's last layer starts at zero:
+  training starts from no modulation.
+- The unmodulated (canonical) coefficients render the reflectance R_t as the channel
+  `output.extras["reflectance"]` [H, W, 3].
+- Embedding cache and Eq. 5: the UNet runs only in training steps (module in training mode and
+  gradients on) on training frames; each run stores its e_t in the buffer `embeddings` [F, E]
+  (and, in Stage 2, its L_t in `illumination_maps` [F, h, w]). Switching the module to
+  evaluation mode (`eval()`, as a loaded run is) recomputes both caches for every training frame
+  with the final UNet, once, so that no entry is left from an earlier state of the network.
+  Every other render (evaluation, videos, test frames) takes e_t and L_t linearly interpolated
+  between the two nearest training times (Eq. 5), with no UNet inference; such renders also
+  carry the upsampled L_t as `output.extras["illumination"]` [H, W, 1]. A frame whose map Stage 2
+  never computed keeps the map 1 (uniform light).
+- Losses "retinex" (Eq. 7) and "bright_channel" (Eq. 8), see losses/retinex.py. Stage 2 is
+  these two terms' `start_iter` in the method config; before it the decoder never runs (Stage 1:
+  "illumination is not explicitly predicted; only e_t modulates appearance").
+- Relighting: `relit("uniform")` renders every time under the mean of the training frames'
+  embeddings and maps (one constant illumination state); `relit(frame)` under frame `frame`'s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from surgsplat.errors import SurgsplatError
+from surgsplat.fields.illumination import LEVELS, IlluminationUNet, brightness
+from surgsplat.losses.retinex import bright_channel_loss, retinex_loss
+from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
+                                       RenderContext, SceneInfo, SetupContext)
+from surgsplat.model.state import GaussianState
+from surgsplat.render.render import view_directions
+from surgsplat.render.sh import SH_C0, eval_sh
+
+MAP_MULTIPLE = 2 ** (LEVELS - 1)
+"""The illumination maps' sides are multiples of this (the UNet pools twice)."""
+UNIFORM = "uniform"
+"""`relit` source: the mean illumination state of the training frames."""
+
+
+@dataclass
+class LumiStateConfig(ComponentConfig, kind="lumistate"):
+    """The illumination network, the SH modulation and their learning rates."""
+
+    map_side: int = 32
+    """Shorter side, pixels, of the brightness and illumination maps the UNet works on
+    (rounded to a multiple of 4). Illumination is smooth, so a coarse map suffices; 32 (32 x 40
+    for 640 x 512 frames) keeps the UNet's share of a CPU training step small."""
+    unet_channels: int = 8
+    """Feature maps of the UNet's first level (doubling at each of its 3 levels)."""
+    embedding_dim: int = 16
+    """Size of the illumination embedding e_t."""
+    pe_frequencies: int = 4
+    """Octaves of the sinusoidal positional encoding of the Gaussians' deformed means."""
+    mlp_width: int = 64
+    """Width of the fusion MLP's three hidden layers."""
+    sh_degree: int = 1
+    """Modulate the SH coefficients up to this degree (higher ones pass unchanged)."""
+    max_log_gain: float = 3.0
+    """Bound of |sigma_i| (the multiplicative term is at most exp of this)."""
+    bright_radius: int = 2
+    """r0 of the bright-channel prior's max-pooling window 2 r0 + 1 (Eq. 8), pixels."""
+    unet_lr: float = 1e-3
+    """Adam learning rate of the UNet at iteration 0 (decays to a tenth at the end)."""
+    mlp_lr: float = 1e-3
+    """Adam learning rate of the fusion MLP at iteration 0 (decays to a tenth at the end)."""
+    num_frames: int = 0
+    """Frames of the clip (set when resolved for a scene)."""
+    map_height: int = 0
+    """Height of the maps, pixels (set when resolved for a scene)."""
+    map_width: int = 0
+    """Width of the maps, pixels (set when resolved for a scene)."""
+
+    def resolve(self, scene: SceneInfo) -> "LumiStateConfig":
+        """This config for the scene: its frame count and the maps' size (aspect kept)."""
+        scale = self.map_side / min(scene.width, scene.height)
+
+        def side(pixels: int) -> int:
+            return max(MAP_MULTIPLE, round(pixels * scale / MAP_MULTIPLE) * MAP_MULTIPLE)
+
+        return dataclasses.replace(self, num_frames=scene.num_frames,
+                                   map_height=side(scene.height), map_width=side(scene.width))
+
+    def build(self) -> "LumiState":
+        return LumiState(self)
+
+
+def positional_encoding(points: Tensor, octaves: int) -> Tensor:
+    """[N, 3] -> [N, 3 + 6 octaves]: the points and sin, cos of 2^k pi points, k < octaves."""
+    scales = math.pi * 2.0 ** torch.arange(octaves, dtype=points.dtype)  # [octaves]
+    angles = (points[:, None, :] * scales[:, None]).flatten(1)  # [N, 3 octaves]
+    return torch.cat([points, angles.sin(), angles.cos()], dim=1)
+
+
+class FusionMLP(nn.Module):
+    """F_psi: (positional encoding [N, P], embedding [E]) -> (sigma, delta) [N, K, 3] each; four
+    linear layers, the first applied to the concatenation [pe, e] (computed as two products so
+    that the embedding's part is computed once)."""
+
+    def __init__(self, encoding_dim: int, embedding_dim: int, width: int, coeffs: int):
+        super().__init__()
+        self.encoding_dim, self.coeffs = encoding_dim, coeffs
+        self.first = nn.Linear(encoding_dim + embedding_dim, width)
+        self.hidden = nn.Sequential(nn.ReLU(), nn.Linear(width, width), nn.ReLU(),
+                                    nn.Linear(width, width), nn.ReLU())
+        self.last = nn.Linear(width, 2 * coeffs * 3)
+        nn.init.zeros_(self.last.weight)
+        nn.init.zeros_(self.last.bias)
+
+    def forward(self, encoding: Tensor, embedding: Tensor) -> tuple[Tensor, Tensor]:
+        weight = self.first.weight
+        from_embedding = embedding @ weight[:, self.encoding_dim:].T + self.first.bias  # [W]
+        x = encoding @ weight[:, :self.encoding_dim].T + from_embedding  # [N, W]
+        out = self.last(self.hidden(x)).view(-1, 2, self.coeffs, 3)
+        return out[:, 0], out[:, 1]
+
+
+class LumiState(Component):
+    """See the module docstring."""
+
+    def __init__(self, config: LumiStateConfig):
+        super().__init__()
+        if config.num_frames < 1 or config.map_height < MAP_MULTIPLE or config.map_width < MAP_MULTIPLE:
+            raise SurgsplatError("lumistate: the config must be resolved for a scene (num_frames, "
+                                 "map_height, map_width) before it is built")
+        if not 0 <= config.sh_degree <= 3:
+            raise SurgsplatError(f"lumistate sh_degree must be 0..3, got {config.sh_degree}")
+        self.config = config
+        frames, height, width = config.num_frames, config.map_height, config.map_width
+        self.unet = IlluminationUNet(config.unet_channels, config.embedding_dim)
+        self.fusion = FusionMLP(3 + 6 * config.pe_frequencies, config.embedding_dim,
+                                config.mlp_width, (config.sh_degree + 1) ** 2)
+        self.register_buffer("brightness", torch.zeros(frames, height, width))  # [F, h, w]
+        self.register_buffer("embeddings", torch.zeros(frames, config.embedding_dim))  # [F, E]
+        self.register_buffer("illumination_maps", torch.ones(frames, height, width))  # [F, h, w]
+        self.register_buffer("known", torch.zeros(frames, dtype=torch.bool))  # training frames
+        self.register_buffer("mapped", torch.zeros(frames, dtype=torch.bool))  # Stage 2 saw it
+        self.register_buffer("centre", torch.zeros(3))  # initial points' centroid
+        self.register_buffer("extent", torch.ones(()))  # their largest distance from it
+        self.relight_source: str | int | None = None
+        self._encoding: tuple[int, list[Tensor]] | None = None  # this step's UNet features
+
+    # ---- setup ----
+    def setup(self, context: SetupContext) -> None:
+        self.centre.copy_(context.points.mean(dim=0))
+        self.extent.fill_(max(context.scene_extent, 1e-6))
+        for frame in context.frames:
+            self.known[frame.index] = True
+            self.brightness[frame.index] = self.downsample(brightness(frame.image))
+        self.refresh_caches()
+
+    def train(self, mode: bool = True) -> "LumiState":
+        """nn.Module.train; leaving training mode refreshes the caches (module docstring)."""
+        if self.training and not mode:
+            self.refresh_caches()
+        return super().train(mode)
+
+    @torch.no_grad()
+    def refresh_caches(self) -> None:
+        """Recompute e_t of every training frame, and L_t of those Stage 2 has seen, with the
+        current UNet."""
+        index = self.known.nonzero()[:, 0]
+        features, embeddings = self.unet.encode(self.brightness[index])
+        self.embeddings[index] = embeddings
+        mapped = self.mapped[index]
+        if mapped.any():
+            self.illumination_maps[index[mapped]] = self.unet.decode(features)[mapped]
+
+    def downsample(self, image_map: Tensor) -> Tensor:
+        """[H, W] full-resolution map -> [h, w] (area average)."""
+        size = (self.config.map_height, self.config.map_width)
+        return F.interpolate(image_map[None, None], size=size, mode="area")[0, 0]
+
+    def param_groups(self) -> list[ParamGroup]:
+        config = self.config
+        return [ParamGroup("illumination_unet", list(self.unet.parameters()), config.unet_lr,
+                           config.unet_lr / 10),
+                ParamGroup("illumination_fusion", list(self.fusion.parameters()), config.mlp_lr,
+                           config.mlp_lr / 10)]
+
+    # ---- illumination state of a moment ----
+    def is_live(self, when: FrameTime) -> bool:
+        """Whether the UNet runs for `when`: a training step on a training frame."""
+        return (self.training and torch.is_grad_enabled() and self.relight_source is None
+                and bool(self.known[when.index]))
+
+    def embedding(self, when: FrameTime) -> Tensor:
+        """e_t [E] of `when`: the UNet's in a training step, else cached / interpolated."""
+        if self.is_live(when):
+            features, embedding = self.unet.encode(self.brightness[when.index][None])
+            self._encoding = (when.index, features)
+            self.embeddings[when.index] = embedding[0].detach()
+            return embedding[0]
+        return self.cached_state(self.embeddings, when)
+
+    def cached_state(self, table: Tensor, when: FrameTime) -> Tensor:
+        """table's entry [...] for `when` under the relight source: Eq. 5's interpolation
+        between the nearest training frames, or their mean for "uniform"."""
+        index = self.known.nonzero()[:, 0]
+        if self.relight_source == UNIFORM:
+            return table[index].mean(dim=0)
+        time = when.time if self.relight_source is None else \
+            self.relight_source / self.config.num_frames
+        return interpolate_in_time(table[index], index.to(torch.float64) / self.config.num_frames,
+                                   time)
+
+    @contextmanager
+    def relit(self, source: str | int) -> Iterator[None]:
+        """Render under illumination `source` while the block runs: "uniform" or a frame index."""
+        if source != UNIFORM and not (isinstance(source, int)
+                                      and 0 <= source < self.config.num_frames):
+            raise SurgsplatError(f"relight source must be {UNIFORM!r} or a frame index in "
+                                 f"[0, {self.config.num_frames}), got {source!r}")
+        previous, self.relight_source = self.relight_source, source
+        try:
+            yield
+        finally:
+            self.relight_source = previous
+
+    # ---- the component contract ----
+    def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
+        """Eq. 4 on the coefficients up to `sh_degree` (see the module docstring)."""
+        embedding = self.embedding(when)
+        encoding = positional_encoding((state.means - self.centre) / self.extent,
+                                       self.config.pe_frequencies)
+        coeffs = min(self.fusion.coeffs, state.sh.shape[1])
+        log_gain, offset = self.fusion(encoding, embedding)  # [N, K, 3] each
+        bound = self.config.max_log_gain
+        log_gain = bound * torch.tanh(log_gain[:, :coeffs] / bound)
+        grey = torch.zeros_like(state.sh[:1, :coeffs])  # the +0.5 of the SH colour, as a DC term
+        grey[0, 0] = 0.5 / SH_C0
+        modulated = (state.sh[:, :coeffs] + grey) * log_gain.exp() - grey \
+            + offset[:, :coeffs] / SH_C0
+        return state.replace(sh=torch.cat([modulated, state.sh[:, coeffs:]], dim=1))
+
+    def render_channels(self, state: GaussianState, gaussians, camera,
+                        when: FrameTime) -> dict[str, Tensor]:
+        """The reflectance: the canonical (unmodulated) coefficients' colour [N, 3]."""
+        directions = view_directions(state.means, camera.world_to_camera)
+        return {"reflectance": eval_sh(state.sh_degree, gaussians.sh_coeffs(), directions)}
+
+    def finish_render(self, output, camera, when: FrameTime) -> None:
+        if not self.is_live(when):
+            low = self.cached_state(self.illumination_maps, when)
+            output.extras["illumination"] = self.upsample(low, camera.height, camera.width)[..., None]
+
+    @staticmethod
+    def upsample(low: Tensor, height: int, width: int) -> Tensor:
+        """[h, w] map -> [height, width] (bilinear)."""
+        return F.interpolate(low[None, None], size=(height, width), mode="bilinear",
+                             align_corners=False)[0, 0]
+
+    def loss_names(self) -> tuple[str, ...]:
+        return ("retinex", "bright_channel")
+
+    def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
+        """Stage 2's terms from this step's L_t (the decoder on the step's UNet features)."""
+        frame, index = context.frame, context.when.index
+        if self._encoding is not None and self._encoding[0] == index:
+            features = self._encoding[1]
+        else:
+            features = self.unet.encode(self.brightness[index][None])[0]
+        self._encoding = None
+        low = self.unet.decode(features)[0]  # [h, w]
+        if self.known[index]:
+            self.illumination_maps[index] = low.detach()
+            self.mapped[index] = True
+        illumination = self.upsample(low, frame.image.shape[0], frame.image.shape[1])
+        terms = {}
+        if "retinex" in active:
+            terms["retinex"] = retinex_loss(context.output.extras["reflectance"], illumination,
+                                            frame.image, frame.tissue)
+        if "bright_channel" in active:
+            terms["bright_channel"] = bright_channel_loss(illumination, frame.image, frame.tissue,
+                                                          self.config.bright_radius)
+        return terms
+
+
+def interpolate_in_time(values: Tensor, times: Tensor, t: float) -> Tensor:
+    """Eq. 5: values [T, ...] known at increasing times [T] -> the value at t, linear between
+    the two nearest times and held constant beyond the first and last."""
+    if values.shape[0] == 1 or t <= float(times[0]):
+        return values[0]
+    if t >= float(times[-1]):
+        return values[-1]
+    right = int(torch.searchsorted(times, torch.tensor([t], dtype=times.dtype))[0])
+    left = right - 1
+    weight = (t - float(times[left])) / float(times[right] - times[left])
+    return (1.0 - weight) * values[left] + weight * values[right]

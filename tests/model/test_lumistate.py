@@ -1,0 +1,139 @@
+"""LumiState: the illumination UNet, the Retinex losses, Eq. 5's interpolation, training in two
+stages, checkpoints, relighting, the decomposition metrics and the render channels."""
+
+import pytest
+import torch
+
+from surgsplat.cli.render_videos import write_run_videos
+from surgsplat.data.scene import load_scene, read_image
+from surgsplat.eval.decomposition import DecompositionScores
+from surgsplat.fields.illumination import IlluminationUNet, bright_channel, brightness
+from surgsplat.losses.retinex import bright_channel_loss, retinex_loss
+from surgsplat.methods.registry import method_config
+from surgsplat.model.component import FrameTime
+from surgsplat.model.dynamic import render_frame
+from surgsplat.model.lumistate import LumiState, interpolate_in_time
+from surgsplat.train.run import load_trained_run
+from surgsplat.train.trainer import Trainer
+
+
+def test_unet_map_is_in_unit_range_with_the_input_shape():
+    torch.manual_seed(0)
+    unet = IlluminationUNet(channels=4, embedding_dim=8)
+    maps = torch.rand(2, 24, 32) * 5.0  # brightness beyond [0, 1] too
+    illumination, embedding = unet(maps)
+    assert illumination.shape == maps.shape and embedding.shape == (2, 8)
+    assert illumination.min() >= 0.0 and illumination.max() <= 1.0
+    # the embedding depends on the frame: a brighter frame gets another one
+    assert not torch.allclose(unet(maps * 0.2)[1], embedding)
+
+
+def test_retinex_losses_vanish_for_an_exact_factorisation():
+    torch.manual_seed(0)
+    reflectance = torch.rand(20, 24, 3)
+    reflectance[..., 0] = 1.0  # a bright channel of 1: then max(R, G, B) of I is L itself
+    illumination = torch.ones(20, 24) * 0.7
+    image = reflectance * illumination[..., None]
+    tissue = torch.ones(20, 24, dtype=torch.bool)
+    tissue[:3] = False
+    assert float(retinex_loss(reflectance, illumination, image, tissue)) == 0.0
+    assert float(bright_channel_loss(illumination, image, tissue, radius=2)) < 1e-12
+    assert float(retinex_loss(reflectance, illumination * 0.5, image, tissue)) > 0.05
+    assert float(bright_channel_loss(illumination * 0.5, image, tissue, radius=2)) > 0.1
+    # only tissue pixels count
+    wrong = image.clone()
+    wrong[:3] = 0.0
+    assert float(retinex_loss(reflectance, illumination, wrong, tissue)) == 0.0
+    # the bright channel is the local maximum of the brightness
+    spot = torch.zeros(9, 9)
+    spot[4, 4] = 1.0
+    assert bright_channel(spot, 2).sum() == 25 and brightness(torch.eye(3)[None]).tolist() == [[1.0] * 3]
+
+
+def test_interpolation_reproduces_training_embeddings_and_blends_between():
+    values = torch.randn(4, 5)
+    times = torch.tensor([0.0, 0.125, 0.5, 0.75], dtype=torch.float64)
+    for value, t in zip(values, times.tolist()):
+        assert torch.equal(interpolate_in_time(values, times, t), value)
+    torch.testing.assert_close(interpolate_in_time(values, times, 0.25),
+                               values[1] * 2 / 3 + values[2] / 3)
+    assert torch.equal(interpolate_in_time(values, times, 0.9), values[-1])
+
+
+def lumistate_method(iterations: int, stage2: int):
+    config = method_config("lumistate")
+    config.train.iterations = iterations
+    config.train.checkpoint_every = 1000
+    config.init.max_points = 800
+    config.densify.start_iter = iterations + 1
+    for term in ("retinex", "bright_channel"):
+        config.losses[term].start_iter = stage2
+    return config
+
+
+@pytest.mark.slow
+def test_lumistate_trains_in_two_stages_restores_and_relights(small_phantom, tmp_path):
+    scene = load_scene(small_phantom)
+    trainer = Trainer(lumistate_method(10, stage2=5), scene, tmp_path / "run")
+    component = trainer.model.components["lumistate"]
+    assert isinstance(component, LumiState)
+    stages = []
+    trainer.fit(lambda stats: stages.append(set(stats.terms)))
+    assert "retinex" not in stages[3] and {"retinex", "bright_channel"} <= stages[-1]
+    trained = [frame.index for frame in scene.train_frames]
+    # Stage 2 stored maps of the frames it saw; the UNet weights changed in both stages
+    assert (component.illumination_maps[trained] != 1.0).any()
+
+    # a loaded run (evaluation mode) holds the caches of the final UNet, as the trained model
+    # does once it leaves training mode
+    trainer.model.eval()
+    run = load_trained_run(tmp_path / "run")
+    restored = run.model.components["lumistate"]
+    torch.testing.assert_close(restored.embeddings, component.embeddings)
+    torch.testing.assert_close(restored.illumination_maps, component.illumination_maps)
+    frame = scene.train_frames[3]
+    when = FrameTime(frame.index, frame.time)
+    normal = render_frame(run.model, frame.camera, when)
+    assert normal.extras["reflectance"].shape == (scene.height, scene.width, 3)
+    assert normal.extras["illumination"].shape == (scene.height, scene.width, 1)
+    with restored.relit(frame.index):
+        relit = render_frame(run.model, frame.camera, when)
+    torch.testing.assert_close(relit.rgb, normal.rgb)
+    torch.testing.assert_close(relit.extras["illumination"], normal.extras["illumination"])
+    with restored.relit("uniform"):
+        uniform = render_frame(run.model, frame.camera, when)
+        other = render_frame(run.model, frame.camera, FrameTime(0, 0.0))
+        mean_embedding = restored.embedding(when)
+    assert not torch.equal(uniform.rgb, normal.rgb)
+    assert (mean_embedding - restored.embedding(when)).abs().max() > 1e-4
+    torch.testing.assert_close(uniform.extras["illumination"], other.extras["illumination"])
+    # the reflectance does not depend on the illumination state
+    torch.testing.assert_close(uniform.extras["reflectance"], normal.extras["reflectance"])
+
+    videos = write_run_videos(run, tmp_path / "videos", 10.0, ("reflectance", "illumination"),
+                              relight="uniform")
+    assert [path.name for path in videos] == ["reflectance-relit-uniform.mp4",
+                                              "illumination-relit-uniform.mp4"]
+    assert all(path.stat().st_size > 0 for path in videos)
+
+
+def test_decomposition_scores_are_scale_free_and_catch_leaking_light(small_phantom):
+    scene = load_scene(small_phantom)
+    frames = scene.test_frames
+    albedos = [torch.from_numpy(read_image(small_phantom / "gt" / "albedo" /
+                                           f"{f.index:06d}.png")).float() / 255 for f in frames]
+    exact, naive = DecompositionScores(), DecompositionScores()
+    for number, (frame, albedo) in enumerate(zip(frames, albedos)):
+        light = 0.5 + 0.4 * number  # a light that changes over the clip
+        exact.add(frame, {"reflectance": albedo * 0.6}, albedo, small_phantom)
+        naive.add(frame, {}, albedo * light, small_phantom)
+    scores, baseline = exact.metrics(), naive.metrics()
+    assert scores["reflectance_error"] < 1e-6 and scores["r_var"] < 1e-12
+    assert baseline["reflectance_error"] > 0.02 and baseline["r_var"] > 1e-3
+    assert baseline["decomposition_source"].startswith("rendered colour")
+    assert "shading_error" not in scores  # the standard phantom has no gt/shading
+
+
+def test_render_options_are_checked_at_the_boundary(tmp_path, cli, one_error_line):
+    line = one_error_line(cli("render", str(tmp_path), "--channels", "rgb,albedo"))
+    assert "--channels" in line and "reflectance" in line
