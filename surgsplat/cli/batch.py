@@ -209,8 +209,9 @@ def batch_command(
     skipped = sum(read_status(job) is not None for job in jobs)
     if skipped:
         console.print(f"{skipped} of {len(jobs)} clips already finished; skipped")
-    run_batch(jobs, ray_address, num_cpus, memory_gb, retries, console)
-    rows = write_summary(jobs, out)
-    done = sum(row["state"] == DONE for row in rows)
-    console.print(f"{done} of {len(rows)} clips done, {len(rows) - done} failed; summary: "
-                  f"{out / SUMMARY_FILE}")
+    recorded = run_batch(jobs, ray_address, num_cpus, memory_gb, retries, console)
+    if recorded or not (out / SUMMARY_FILE).is_file():
+        write_summary(jobs, out)
+    states = [(read_status(job) or {}).get("state") for job in jobs]
+    console.print(f"{states.count(DONE)} of {len(jobs)} clips done, {states.count(FAILED)} "
+                  f"failed; summary: {out / SUMMARY_FILE}")
