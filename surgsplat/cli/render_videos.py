@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Annotated
 
@@ -13,7 +14,8 @@ from rich.console import Console
 
 from surgsplat.cli.progress import progress_bar
 from surgsplat.eval.normals import surface_normals
-from surgsplat.export.video import colorize_depth, colorize_normals, even_size, to_uint8, write_video
+from surgsplat.export.video import (VideoWriter, colorize_depth, colorize_normals, even_size,
+                                    to_uint8)
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.errors import SurgsplatError
@@ -38,12 +40,13 @@ def depth_range(run: TrainedRun) -> tuple[float, float]:
 
 
 def write_run_videos(run: TrainedRun, out_dir: Path, fps: float) -> list[Path]:
-    """Render every frame of the run's scene; write rgb, depth and side-by-side videos."""
+    """Render every frame of the run's scene; write rgb, depth, normal and side-by-side videos,
+    frame by frame (memory does not grow with the clip)."""
     near, far = depth_range(run)
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
     frames = run.scene.frames
-    videos: list[list[np.ndarray]] = [[] for _ in VIDEO_NAMES]
-    with progress_bar() as bar:
+    with ExitStack() as files, progress_bar() as bar:
+        videos = [files.enter_context(VideoWriter(out_dir / name, fps)) for name in VIDEO_NAMES]
         task = bar.add_task("render", total=len(frames))
         for frame in frames:
             camera = frame.camera
@@ -54,12 +57,9 @@ def write_run_videos(run: TrainedRun, out_dir: Path, fps: float) -> list[Path]:
             normal = colorize_normals(normals.numpy(), valid.numpy())
             side = np.concatenate([to_uint8(frame.image.numpy()), rgb, depth], axis=1)
             for video, image in zip(videos, (rgb, depth, normal, side)):
-                video.append(even_size(image))
+                video.add(even_size(image))
             bar.advance(task)
-    paths = [out_dir / name for name in VIDEO_NAMES]
-    for path, video in zip(paths, videos):
-        write_video(path, video, fps)
-    return paths
+    return [video.path for video in videos]
 
 
 def render_command(

@@ -17,6 +17,7 @@ from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.fields.hexplane import HexPlaneConfig
 from surgsplat.methods.registry import method_config
 from surgsplat.model.component import SceneInfo
+from surgsplat.model.init_points import fusion_frames
 from surgsplat.train.trainer import Trainer
 
 
@@ -81,3 +82,9 @@ def test_gaussian_basis_count_grows_slowly_and_is_capped():
         for n in (4, 100, 2000, 3000, 7500, 100_000)]
     assert counts == [2, 8, 8, 12, 16, 16]
     assert time_capacity(10, 8, 0, 4) == 5  # frames_per_unit 0 is taken as 1
+
+
+def test_point_fusion_reads_a_bounded_number_of_evenly_spaced_frames():
+    frames = list(range(10))
+    assert fusion_frames(frames, 4) == [0, 3, 6, 9]
+    assert fusion_frames(frames, 10) is frames
