@@ -3,8 +3,8 @@ another in one process.
 
 Both sides get the same CPUs (`--cpus`): Ray a local instance of that many CPUs with one clip's
 tasks declaring them all, so clips run one at a time as in the sequential run, which runs every
-stage of every clip (`run_clip_here`) in one Python process with that many threads. Each side
-is a fresh subprocess, timed from start to exit (Python and torch start-up, Ray's start and
+stage of every clip (`run_clip_here`) in one Python process with that many threads; both write
+the summary and the HTML report. Each side is a fresh subprocess, timed from start to exit (Python and torch start-up, Ray's start and
 stop included); the clips are copies of the small phantom. Overhead share = (Ray wall -
 sequential wall) / Ray wall.
 
@@ -34,13 +34,14 @@ SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
 SEQUENTIAL = """
 import sys
 from pathlib import Path
-from surgsplat.cli.batch import clip_jobs
+from surgsplat.cli.batch import clip_jobs, write_summary
 from surgsplat.cli.batch_stages import run_clip_here
 out, iters, threads, *clips = sys.argv[1:]
-for job in clip_jobs([Path(c) for c in clips], Path(out), "deform3dgs", int(iters), int(threads),
-                     15.0):
+jobs = clip_jobs([Path(c) for c in clips], Path(out), "deform3dgs", int(iters), int(threads), 15.0)
+for job in jobs:
     status = run_clip_here(job)
     assert status["state"] == "done", status
+write_summary(jobs, Path(out))
 """
 
 
