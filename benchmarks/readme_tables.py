@@ -1,8 +1,8 @@
 """Writes the README's benchmark tables from the benchmark results: every
 benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of README.md, for the
-benchmarks bench_render, bench_threads, bench_outputs, bench_auto_masks and
-bench_shading_depth, and for every suite of bench_methods
+benchmarks bench_render, bench_threads, bench_outputs, bench_auto_masks,
+bench_shading_depth, bench_batch and bench_long_clip, and for every suite of bench_methods
 whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
 hand.
 
@@ -75,7 +75,7 @@ def render_threads_table(report: dict) -> str:
 
 def metric_format(key: str) -> str:
     """How a bench_methods column is printed, from its name."""
-    if key in ("iterations", "num_gaussians", "collisions"):
+    if key in ("iterations", "num_gaussians", "collisions", "clips", "frames"):
         return "d"
     if key.startswith("ssim"):
         return ".4f"
@@ -169,9 +169,29 @@ def shading_depth_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def long_clip_table(report: dict) -> str:
+    """Markdown for one bench_long_clip report: one row per clip length, steps per second also
+    as a ratio to the shortest clip's."""
+    rows = sorted(report["rows"], key=lambda row: row["frames"])
+    lines = [
+        f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs, ISA "
+        f"{report['system']['isa']}), {report['date'][:10]}, {report['method']} at "
+        f"{report['width']}x{report['height']}, {rows[0]['iters']} iterations:",
+        "",
+        "| frames | peak RSS MB | steps/s | steps/s vs shortest | Gaussians | wall s |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        lines.append(f"| {row['frames']} | {row['peak_rss_mb']:.0f} | {row['steps_per_s']:.2f} "
+                     f"| {row['steps_per_s'] / rows[0]['steps_per_s']:.2f} "
+                     f"| {row['num_gaussians']} | {row['wall_seconds']:.0f} |")
+    return "\n".join(lines)
+
+
 RENDERERS = {"bench_render": render_table, "bench_threads": render_threads_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
-             "bench_shading_depth": shading_depth_table}
+             "bench_shading_depth": shading_depth_table, "bench_batch": methods_table,
+             "bench_long_clip": long_clip_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A README region of one bench_methods suite, e.g. bench_methods_endoplanar."""
 

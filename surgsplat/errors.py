@@ -14,3 +14,7 @@ class DataError(SurgsplatError):
         self.path = Path(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+    def __reduce__(self):
+        """Pickled as (path, problem), so it crosses process boundaries (Ray tasks)."""
+        return type(self), (self.path, self.problem)

@@ -72,3 +72,14 @@ def test_a_video_stopped_part_way_leaves_the_previous_one(tmp_path):
         write_video(path, stopped(), fps=5)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rgb.mp4"]
+
+
+def test_data_error_survives_pickling():
+    """DataError crosses process boundaries (Ray tasks, multiprocessing) intact."""
+    import pickle
+
+    from surgsplat.errors import DataError
+
+    error = pickle.loads(pickle.dumps(DataError("/scene/images/000001.png", "is empty")))
+    assert (str(error.path), error.problem) == ("/scene/images/000001.png", "is empty")
+    assert str(error) == "/scene/images/000001.png: is empty"

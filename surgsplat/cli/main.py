@@ -58,7 +58,7 @@ def _stoppable(command: Callable) -> Callable:
 
 
 def _register() -> None:
-    from surgsplat.cli import (demo, eval_cmd, export_cmd, import_cmd, info, methods, phantom,
+    from surgsplat.cli import (batch, demo, eval_cmd, export_cmd, import_cmd, info, methods, phantom,
                                render_videos, report_cmd, train, view)
 
     for name, command in (("demo", demo.demo_command), ("phantom", phantom.phantom_command),
@@ -67,7 +67,8 @@ def _register() -> None:
                           ("eval", eval_cmd.eval_command),
                           ("render", render_videos.render_command),
                           ("export", export_cmd.export_command),
-                          ("report", report_cmd.report_command), ("view", view.view_command)):
+                          ("report", report_cmd.report_command), ("view", view.view_command),
+                          ("batch", batch.batch_command)):
         app.command(name)(_stoppable(command))
 
 

@@ -8,7 +8,7 @@ under another illumination state (see model/lumistate.py), into files named NAME
 from __future__ import annotations
 
 import math
-from contextlib import nullcontext
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Annotated
 
@@ -19,7 +19,8 @@ from rich.console import Console
 
 from surgsplat.cli.progress import progress_bar
 from surgsplat.eval.normals import surface_normals
-from surgsplat.export.video import colorize_depth, colorize_normals, even_size, to_uint8, write_video
+from surgsplat.export.video import (VideoWriter, colorize_depth, colorize_normals, even_size,
+                                    to_uint8)
 from surgsplat.model.component import FrameTime
 from surgsplat.model.lumistate import UNIFORM, LumiState
 from surgsplat.model.dynamic import render_frame
@@ -81,13 +82,18 @@ def write_run_videos(run: TrainedRun, out_dir: Path, fps: float,
                      channels: tuple[str, ...] = DEFAULT_CHANNELS,
                      relight: str | int | None = None) -> list[Path]:
     """Render every frame of the run's scene (under illumination `relight` when given, see
-    LumiState.relit); write one video per channel in `channels`."""
+    LumiState.relit); write one video per channel in `channels`, frame by frame (memory does not
+    grow with the clip)."""
     near, far = depth_range(run)
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
     frames = run.scene.frames
-    videos: dict[str, list[np.ndarray]] = {name: [] for name in channels}
-    lighting = nullcontext() if relight is None else illumination_component(run).relit(relight)
-    with progress_bar() as bar, lighting:
+    suffix = "" if relight is None else f"-relit-{relight}"
+    with ExitStack() as stack:
+        if relight is not None:
+            stack.enter_context(illumination_component(run).relit(relight))
+        videos = {name: stack.enter_context(VideoWriter(out_dir / f"{name}{suffix}.mp4", fps))
+                  for name in channels}
+        bar = stack.enter_context(progress_bar())
         task = bar.add_task("render", total=len(frames))
         for frame in frames:
             camera = frame.camera
@@ -108,13 +114,9 @@ def write_run_videos(run: TrainedRun, out_dir: Path, fps: float,
                       "illumination": lambda: to_uint8(
                           out.extras["illumination"].expand(-1, -1, 3).numpy())}
             for name, video in videos.items():
-                video.append(even_size(images[name]()))
+                video.add(even_size(images[name]()))
             bar.advance(task)
-    suffix = "" if relight is None else f"-relit-{relight}"
-    paths = [out_dir / f"{name}{suffix}.mp4" for name in channels]
-    for path, video in zip(paths, videos.values()):
-        write_video(path, video, fps)
-    return paths
+    return [video.path for video in videos.values()]
 
 
 def render_command(

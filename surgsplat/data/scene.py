@@ -13,10 +13,11 @@ import math
 import os
 import sys
 import tempfile
+import threading
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -26,6 +27,7 @@ import torch
 from PIL import Image, ImageFile
 from torch import Tensor
 
+from surgsplat.data.frame_store import CACHE_BYTES, FramePixels, FrameStore
 from surgsplat.data.layout import (DEPTH_DIR, DEPTH_SUFFIXES, FOV_FILE, IMAGE_SUFFIXES,
                                    IMAGES_DIR, INSIDE_VALUE, MASKS_DIR, META_FILE, POSES_FILE,
                                    TOOL_VALUE, Intrinsics, SceneMeta, list_files,
@@ -85,22 +87,65 @@ class Camera:
         return inverse.float()
 
 
-@dataclass(frozen=True)
 class Frame:
-    """One video frame with what is known about it."""
+    """One video frame with what is known about it.
 
-    index: int
-    time: float  # index / number of frames, in [0, 1)
-    image: Tensor  # [H, W, 3] float32 RGB in [0, 1]
-    depth: Tensor | None  # [H, W] float32 in the scene's depth unit; 0 = no depth
-    is_test: bool
-    camera: Camera  # this frame's camera
-    tool: Tensor  # [H, W] bool, True = tool
-    fov: Tensor  # [H, W] bool, True = inside the field of view
-    tissue: Tensor = field(init=False)  # [H, W] bool, True = tissue = fov & ~tool
+    Its pixels (image, depth, tool, tissue) are either held, when given to the constructor, or,
+    for the frames of a loaded scene, decoded from the scene's files when first used and kept in
+    the scene's bounded FrameStore cache (see `surgsplat.data.frame_store`), so that a clip of
+    any length fits in memory. Either way the properties below give the same tensors.
+    """
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "tissue", self.fov & ~self.tool)
+    __slots__ = ("index", "time", "is_test", "camera", "_held", "_store")
+
+    def __init__(self, index: int, time: float, image: Tensor, depth: Tensor | None,
+                 is_test: bool, camera: Camera, tool: Tensor, fov: Tensor):
+        self.index = index
+        self.time = time  # index / number of frames, in [0, 1)
+        self.is_test = is_test
+        self.camera = camera  # this frame's camera
+        self._held: FramePixels | None = FramePixels(image=image, depth=depth, tool=tool, fov=fov)
+        self._store: FrameStore | None = None
+
+    @classmethod
+    def stored(cls, index: int, time: float, is_test: bool, camera: Camera,
+               store: FrameStore) -> "Frame":
+        """A frame whose pixels are `store`'s entry `index`, decoded when first used."""
+        frame = cls.__new__(cls)
+        frame.index, frame.time, frame.is_test, frame.camera = index, time, is_test, camera
+        frame._held, frame._store = None, store
+        return frame
+
+    @property
+    def pixels(self) -> FramePixels:
+        """Every pixel array of this frame (decoded now unless held or cached)."""
+        return self._held if self._held is not None else self._store.get(self.index)
+
+    @property
+    def image(self) -> Tensor:  # [H, W, 3] float32 RGB in [0, 1]
+        return self.pixels.image
+
+    @property
+    def depth(self) -> Tensor | None:  # [H, W] float32 in the scene's depth unit; 0 = no depth
+        return self.pixels.depth
+
+    @property
+    def tool(self) -> Tensor:  # [H, W] bool, True = tool
+        return self.pixels.tool
+
+    @property
+    def fov(self) -> Tensor:  # [H, W] bool, True = inside the field of view
+        return self.pixels.fov
+
+    @property
+    def tissue(self) -> Tensor:  # [H, W] bool, True = tissue = fov & ~tool
+        return self.pixels.tissue
+
+    def prefetch(self) -> None:
+        """Say that this frame is needed soon: its files start decoding in the background
+        (nothing to do for a frame whose pixels are held or cached)."""
+        if self._store is not None:
+            self._store.prefetch(self.index)
 
 
 @dataclass(frozen=True)
@@ -154,11 +199,20 @@ def is_test_index(index: int) -> bool:
     return index % TEST_EVERY == TEST_OFFSET
 
 
+_STDERR_LOCK = threading.Lock()
+"""One redirection of file descriptor 2 at a time (frames decode on several threads)."""
+
+
 @contextmanager
 def native_stderr_to(sink: list[str]) -> Iterator[None]:
     """Collect what native libraries (libpng, libjpeg, libtiff inside OpenCV) print to the
     process's stderr during the block into `sink`, instead of letting it reach the user
     without a file name."""
+    with _STDERR_LOCK:
+        yield from _redirected_stderr(sink)
+
+
+def _redirected_stderr(sink: list[str]) -> Iterator[None]:
     sys.stderr.flush()
     saved = os.dup(2)
     with tempfile.TemporaryFile() as capture:
@@ -372,8 +426,58 @@ def _folder_files(root: Path, name: str, suffixes: tuple[str, ...], required: bo
     return files
 
 
-def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
+@dataclass(frozen=True)
+class FrameFiles:
+    """The files of one frame and how to read them."""
+
+    image: Path
+    depth: Path | None  # None: the scene has no depth/
+    mask: Path | None  # None: the scene has no masks/
+    depth_scale: float  # scene units per stored integer of PNG/TIFF depth
+    size: tuple[int, int]  # (H, W) of the scene's first image
+
+
+def read_frame_files(files: FrameFiles, fov: np.ndarray | None
+                     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """A frame's files decoded and checked: uint8 RGB [H, W, 3], float32 depth [H, W] (None
+    without depth) and bool tool mask [H, W] (None without masks); `fov` is the scene's
+    field-of-view mask (None without fov_mask.png). DataError naming the file when one is
+    unreadable, of another size, or leaves no tissue visible."""
+    image = read_image(files.image)
+    _check_size(files.image, image.shape[:2], files.size)
+    depth = None
+    if files.depth is not None:
+        depth = read_depth(files.depth, files.depth_scale)
+        _check_size(files.depth, depth.shape, files.size)
+    tool = None
+    if files.mask is not None:
+        tool = read_tool_mask(files.mask)
+        _check_size(files.mask, tool.shape, files.size)
+        if tool.all():
+            raise DataError(files.mask, "marks every pixel as tool: no tissue is visible")
+        if fov is not None and not (fov & ~tool).any():
+            raise DataError(files.mask, f"marks every pixel inside {FOV_FILE} as tool: no "
+                                        "tissue is visible")
+    return image, depth, tool
+
+
+def frame_pixels(image: np.ndarray, depth: np.ndarray | None, tool: np.ndarray | None,
+                 fov: Tensor) -> FramePixels:
+    """The tensors of a frame from what read_frame_files gave (fov: [H, W] bool, shared)."""
+    return FramePixels(image=torch.from_numpy(image).float().div_(255.0),
+                       depth=None if depth is None else torch.from_numpy(depth),
+                       tool=torch.zeros(fov.shape, dtype=torch.bool) if tool is None
+                       else torch.from_numpy(tool), fov=fov)
+
+
+def load_scene(root: str | Path, depth_scale: float | None = None,
+               cache_bytes: int = CACHE_BYTES) -> Scene:
     """Load and validate a scene folder.
+
+    Every frame's files are decoded and checked here, one frame at a time, so that a bad file
+    stops the load with a DataError naming it; the frames then decode again from their files
+    when used, through a cache of at most `cache_bytes` (whole clips that fit stay cached from
+    this first pass), so memory does not grow with the clip's length.
 
     The scene's fingerprint is a BLAKE2b digest of what was decoded: the poses, the camera
     matrix and every frame's 8-bit image, depth and masks, so a run can tell its own scene from
@@ -416,6 +520,7 @@ def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
     digest.update(cameras[0].K.numpy().tobytes())
     fov_path = root / FOV_FILE
     has_fov = fov_path.is_file()
+    fov_np = None
     fov = torch.ones(size, dtype=torch.bool)  # shared by every frame
     if has_fov:
         fov_np = read_fov_mask(fov_path)
@@ -423,33 +528,22 @@ def load_scene(root: str | Path, depth_scale: float | None = None) -> Scene:
         fov = torch.from_numpy(fov_np)
         digest.update(fov_np.tobytes())
 
+    files = [FrameFiles(image=image_path, depth=depth_files[index] if depth_files else None,
+                        mask=mask_files[index] if mask_files else None,
+                        depth_scale=meta.depth_scale, size=size)
+             for index, image_path in enumerate(image_files)]
+    store = FrameStore(lambda index: frame_pixels(*read_frame_files(files[index], fov_np), fov),
+                       cache_bytes)
     frames = []
-    for index, image_path in enumerate(image_files):
-        image = first_image if index == 0 else read_image(image_path)
-        _check_size(image_path, image.shape[:2], size)
-        digest.update(image.tobytes())
-        depth = None
-        if depth_files:
-            depth_np = read_depth(depth_files[index], meta.depth_scale)
-            _check_size(depth_files[index], depth_np.shape, size)
-            digest.update(depth_np.tobytes())
-            depth = torch.from_numpy(depth_np)
-        tool = torch.zeros(size, dtype=torch.bool)
-        if mask_files:
-            tool_np = read_tool_mask(mask_files[index])
-            _check_size(mask_files[index], tool_np.shape, size)
-            if tool_np.all():
-                raise DataError(mask_files[index], "marks every pixel as tool: no tissue is "
-                                                   "visible")
-            tool = torch.from_numpy(tool_np)
-            digest.update(tool_np.tobytes())
-            if has_fov and not (fov & ~tool).any():
-                raise DataError(mask_files[index], f"marks every pixel inside {FOV_FILE} as "
-                                                   "tool: no tissue is visible")
-        frames.append(Frame(index=index, time=index / count,
-                            image=torch.from_numpy(image).float().div_(255.0), depth=depth,
-                            is_test=is_test_index(index), camera=cameras[index], tool=tool,
-                            fov=fov))
+    for index, frame_files in enumerate(files):
+        arrays = read_frame_files(frame_files, fov_np)
+        for array in arrays:
+            if array is not None:
+                digest.update(array.tobytes())
+        store.put(index, frame_pixels(*arrays, fov))
+        frames.append(Frame.stored(index=index, time=index / count,
+                                   is_test=is_test_index(index), camera=cameras[index],
+                                   store=store))
     near, far = (float(v) for v in poses[0, 15:17])
     return Scene(root=root, frames=frames, meta=meta, near=near, far=far,
                  has_depth=bool(depth_files), has_masks=bool(mask_files), has_fov=has_fov,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable
+from contextlib import ExitStack
 from pathlib import Path
 
 import cv2
@@ -11,6 +12,39 @@ import imageio_ffmpeg
 import numpy as np
 
 from surgsplat.atomic import replacing
+
+
+class VideoWriter:
+    """An H.264 mp4 written frame by frame (uint8 RGB [H, W, 3], all the same size, H and W
+    even), atomically: inside `with`, frames go to a temporary file that replaces `path` when
+    the block ends normally and is removed otherwise. At least one frame must be added."""
+
+    def __init__(self, path: Path, fps: float = 15.0):
+        self.path = Path(path)
+        self.fps = fps
+        self.count = 0
+        self._stack = ExitStack()
+        self._tmp: Path | None = None
+        self._writer = None
+
+    def __enter__(self) -> "VideoWriter":
+        self._tmp = self._stack.enter_context(replacing(self.path))
+        return self
+
+    def add(self, frame: np.ndarray) -> None:
+        if self._writer is None:
+            height, width = frame.shape[:2]
+            self._writer = imageio_ffmpeg.write_frames(
+                str(self._tmp), (width, height), fps=self.fps, codec="libx264",
+                pix_fmt_in="rgb24", pix_fmt_out="yuv420p", macro_block_size=2, quality=8,
+                output_params=["-loglevel", "error"])
+            self._writer.send(None)
+            self._stack.callback(self._writer.close)  # before replacing() takes the file
+        self._writer.send(np.ascontiguousarray(frame, dtype=np.uint8))
+        self.count += 1
+
+    def __exit__(self, *exc) -> bool:
+        return self._stack.__exit__(*exc)
 
 
 def write_video(path: Path, frames: Iterable[np.ndarray], fps: float = 15.0) -> int:
@@ -21,21 +55,10 @@ def write_video(path: Path, frames: Iterable[np.ndarray], fps: float = 15.0) -> 
     first = next(frames, None)
     if first is None:
         return 0
-    count = 0
-    with replacing(path) as tmp:
-        height, width = first.shape[:2]
-        writer = imageio_ffmpeg.write_frames(
-            str(tmp), (width, height), fps=fps, codec="libx264", pix_fmt_in="rgb24",
-            pix_fmt_out="yuv420p", macro_block_size=2, quality=8,
-            output_params=["-loglevel", "error"])
-        writer.send(None)
-        try:
-            for frame in itertools.chain([first], frames):
-                writer.send(np.ascontiguousarray(frame, dtype=np.uint8))
-                count += 1
-        finally:
-            writer.close()
-    return count
+    with VideoWriter(path, fps) as video:
+        for frame in itertools.chain([first], frames):
+            video.add(frame)
+    return video.count
 
 
 def even_size(image: np.ndarray) -> np.ndarray:

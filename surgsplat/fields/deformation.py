@@ -34,6 +34,18 @@ COLOR_CHANNELS = 3
 """Deformed colour channels: SH DC offset (3)."""
 
 
+def time_capacity(num_frames: int, short_clip: int, frames_per_unit: int, maximum: int) -> int:
+    """Units of temporal capacity (time cells, basis functions) for a clip of `num_frames`.
+
+    Short clips get one unit per two frames, at most `short_clip`, so held-out times are
+    interpolated, not memorised. Longer clips, whose motion has more events to follow, get one
+    unit per `frames_per_unit` frames once that exceeds `short_clip`, up to `maximum`. At least
+    2. Idempotent: feeding the result back as `short_clip` gives it again.
+    """
+    return max(2, min(short_clip, num_frames // 2),
+               min(maximum, num_frames // max(frames_per_unit, 1)))
+
+
 def num_channels(deform_color: bool) -> int:
     """Channels a field produces per Gaussian: 10 for geometry, 13 with colour."""
     return GEOMETRY_CHANNELS + (COLOR_CHANNELS if deform_color else 0)

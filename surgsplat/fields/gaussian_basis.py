@@ -31,7 +31,8 @@ import torch
 from torch import Tensor
 
 from surgsplat.errors import SurgsplatError
-from surgsplat.fields.deformation import Deformation, DeformationField, num_channels
+from surgsplat.fields.deformation import (Deformation, DeformationField, num_channels,
+                                          time_capacity)
 from surgsplat.model.component import ComponentConfig, SceneInfo
 
 WEIGHTS = "basis_weights"
@@ -47,6 +48,12 @@ class GaussianBasisConfig(ComponentConfig, kind="gaussian_basis"):
     """Number B of Gaussian basis functions per Gaussian (at least 2). Eight fit the smooth
     tissue motion of a clip of a few seconds; more let each Gaussian's curve chase noise (on the
     full phantom, 16 cost about 1 dB of test PSNR)."""
+    long_clip_frames_per_basis: int = 250
+    """Clips longer than this x num_basis frames get one basis function per this many frames.
+    Every basis function costs each Gaussian D + 2 parameters, hence the sparse growth."""
+    max_basis: int = 16
+    """Upper limit of the basis functions of a long clip (per-Gaussian memory and time grow
+    linearly with it)."""
     init_width: float = 1.0
     """Initial width sigma of every basis function, in units of the spacing of the centres."""
     weights_lr: float = 2.5e-4
@@ -63,9 +70,10 @@ class GaussianBasisConfig(ComponentConfig, kind="gaussian_basis"):
 
     def resolve(self, scene: SceneInfo) -> "GaussianBasisConfig":
         """This config for the scene's clip: at most one basis function per two frames, so that
-        the curves cannot interpolate the held-out times arbitrarily."""
-        return dataclasses.replace(self,
-                                   num_basis=max(2, min(self.num_basis, scene.num_frames // 2)))
+        the curves cannot interpolate the held-out times arbitrarily; more for a long clip
+        (`time_capacity`)."""
+        return dataclasses.replace(self, num_basis=time_capacity(
+            scene.num_frames, self.num_basis, self.long_clip_frames_per_basis, self.max_basis))
 
     def build(self) -> "GaussianBasisField":
         return GaussianBasisField(self)

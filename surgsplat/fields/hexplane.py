@@ -25,7 +25,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from surgsplat.errors import SurgsplatError
-from surgsplat.fields.deformation import Deformation, DeformationField, num_channels
+from surgsplat.fields.deformation import (Deformation, DeformationField, num_channels,
+                                          time_capacity)
 from surgsplat.model.component import ComponentConfig, ParamGroup, SceneInfo
 from surgsplat.render.native import Backend, native_module, resolve_backend
 
@@ -44,7 +45,13 @@ class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     max_resolution: int = 64
     """Upper limit of any scale's spatial resolution."""
     time_resolution: int = 25
-    """Cells along time of the spatio-temporal planes (about half the frame count)."""
+    """Cells along time of the spatio-temporal planes for a short clip (at most half the frame
+    count)."""
+    long_clip_frames_per_cell: int = 10
+    """Clips longer than 10 x time_resolution frames get one time cell per this many frames
+    (the planes' memory grows with it; the cost per Gaussian does not)."""
+    max_time_resolution: int = 300
+    """Upper limit of the time cells of a long clip."""
     feature_dim: int = 32
     """Feature channels C of every plane."""
     mlp_width: int = 64
@@ -60,9 +67,11 @@ class HexPlaneConfig(ComponentConfig, kind="hexplane"):
 
     def resolve(self, scene: SceneInfo) -> "HexPlaneConfig":
         """This config for the scene's clip: time resolution at most half the frame count (as
-        4DGS / EndoGaussian choose it), so held-out times are interpolated, not memorised."""
-        return dataclasses.replace(
-            self, time_resolution=max(2, min(self.time_resolution, scene.num_frames // 2)))
+        4DGS / EndoGaussian choose it), so held-out times are interpolated, not memorised;
+        growing with a long clip (`time_capacity`)."""
+        return dataclasses.replace(self, time_resolution=time_capacity(
+            scene.num_frames, self.time_resolution, self.long_clip_frames_per_cell,
+            self.max_time_resolution))
 
     def build(self) -> "HexPlaneField":
         return HexPlaneField(self)

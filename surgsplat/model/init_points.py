@@ -46,6 +46,10 @@ class InitConfig:
     """Scenes without depth: distance of the initial plane, in scene units."""
     seed: int = 0
     """Seed of the subsampling."""
+    max_fusion_frames: int = 256
+    """Fusion looks at no more than this many training frames: every one of a shorter clip,
+    else this many evenly spaced from the first, so that start-up time and memory do not grow
+    with the length of the clip."""
 
 
 @dataclass
@@ -64,31 +68,46 @@ def _mog_motion_mask(frames: list[Frame], var_threshold: float) -> Tensor:
     """[H, W] bool: MOG2 foreground of frame 0 under a background learnt on frames 1..N-1."""
     subtractor = cv2.createBackgroundSubtractorMOG2(history=len(frames), varThreshold=var_threshold,
                                                     detectShadows=False)
-    as_uint8 = [(f.image.numpy() * 255).astype(np.uint8) for f in frames]
-    for image in as_uint8[1:]:
-        subtractor.apply(image, learningRate=-1)
-    foreground = subtractor.apply(as_uint8[0], learningRate=0)
+    for frame in frames[1:]:
+        subtractor.apply(_as_uint8(frame), learningRate=-1)
+    foreground = subtractor.apply(_as_uint8(frames[0]), learningRate=0)
     return torch.from_numpy(foreground > 0)
+
+
+def _as_uint8(frame: Frame) -> np.ndarray:
+    """[H, W, 3] uint8 RGB of `frame`."""
+    return (frame.image.numpy() * 255).astype(np.uint8)
+
+
+def fusion_frames(frames: list[Frame], limit: int) -> list[Frame]:
+    """`frames` when there are at most `limit`, else `limit` of them evenly spaced, the first
+    included."""
+    if len(frames) <= limit:
+        return frames
+    picks = torch.linspace(0, len(frames) - 1, max(limit, 1)).round().long().unique()
+    return [frames[int(i)] for i in picks]
 
 
 def _selected_pixels(scene: Scene, config: InitConfig) -> list[tuple[Frame, Tensor]]:
     """(frame, [H, W] bool) pairs of the pixels that become points."""
-    frames = scene.train_frames
+    frames = fusion_frames(scene.train_frames, config.max_fusion_frames)
     first = frames[0]
     stride = _stride_mask(scene.height, scene.width, config.pixel_stride)
-    valid = [f.tissue & (f.depth > 0) & stride for f in frames]
-    chosen = [(first, valid[0])]
+    first_depth = first.depth  # [H, W]
+    first_valid = first.tissue & (first_depth > 0) & stride
+    chosen = [(first, first_valid)]
     if config.fusion == "none":
         return chosen
-    covered = valid[0].clone()
+    covered = first_valid.clone()
     motion = None
     if config.fusion == "mogf":
         motion = _mog_motion_mask(frames, config.mog_var_threshold)
-    for frame, frame_valid in zip(frames[1:], valid[1:]):
+    for frame in frames[1:]:
+        frame_valid = frame.tissue & (frame.depth > 0) & stride
         new = frame_valid & ~covered
         if config.fusion == "mapf":
-            moved = (frame.depth - first.depth).abs() > config.motion_threshold
-            new |= frame_valid & moved & valid[0]
+            moved = (frame.depth - first_depth).abs() > config.motion_threshold
+            new |= frame_valid & moved & first_valid
         else:
             new |= frame_valid & motion
         covered |= new

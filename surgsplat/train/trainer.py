@@ -40,6 +40,8 @@ SCENE_ID_FILE = "scene.json"
 CHECKPOINT = "checkpoints/latest.pt"
 LOG_FILE = "train_log.jsonl"
 LOG_EVERY = 10
+PREFETCH_FRAMES = 3
+"""Training frames decoded ahead in the background: the next ones of the sampling order."""
 
 
 @dataclass
@@ -186,7 +188,10 @@ class Trainer:
         frames = self.scene.train_frames
         if not self._frame_queue:
             self._frame_queue = torch.randperm(len(frames), generator=self.frame_generator).tolist()
-        return frames[self._frame_queue.pop()]
+        frame = frames[self._frame_queue.pop()]
+        for upcoming in reversed(self._frame_queue[-PREFETCH_FRAMES:]):
+            frames[upcoming].prefetch()
+        return frame
 
     def step(self) -> StepStats:
         """One optimisation step on one random training frame."""

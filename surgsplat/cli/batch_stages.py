@@ -1,0 +1,176 @@
+"""The stages of reconstructing one clip in a batch: import, train, evaluate, render.
+
+Each stage is a plain function of the clip's folders that can run again after a stop: import
+is skipped when the scene is complete, training resumes from the run's checkpoint, evaluation
+and rendering rewrite their files. `surgsplat batch` runs them as Ray tasks
+(`surgsplat.cli.batch`); they run as well one after another in one process.
+
+A batch folder holds one folder per clip, OUT/<clip name>/, with scene/ (the imported scene,
+unless the clip already is a scene folder), run/ (the run folder, with metrics.json and
+videos/) and status.json (state "done" or "failed", the failing stage and its error).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from surgsplat.atomic import write_text_atomic
+from surgsplat.cli.eval_cmd import METRICS_FILE, evaluate_and_report
+from surgsplat.cli.render_videos import write_run_videos
+from surgsplat.cli.train import train_run
+from surgsplat.data.importer import ImportConfig, import_scene
+from surgsplat.data.layout import POSES_FILE
+from surgsplat.data.scene import load_scene
+from surgsplat.eval.run_metrics import EvalOptions
+from surgsplat.methods.registry import method_config
+from surgsplat.render.native import set_threads
+from surgsplat.train.run import load_trained_run, run_lock
+from surgsplat.train.trainer import CHECKPOINT, LOG_FILE
+
+STATUS_FILE = "status.json"
+DONE, FAILED = "done", "failed"
+STAGES = ("import", "train", "eval", "render")
+
+
+@dataclass(frozen=True)
+class ClipJob:
+    """One clip of a batch and what to do with it."""
+
+    source: Path  # a video, a folder of frames, or a scene folder
+    folder: Path  # OUT/<name>
+    method: str  # method preset
+    iterations: int | None  # None: the preset's
+    threads: int  # torch and native-kernel threads of every stage
+    fps: float  # of the rendered videos
+    geometry: bool = True  # evaluate geometry against gt/ meshes when the scene has them
+
+    @property
+    def name(self) -> str:
+        return self.folder.name
+
+    @property
+    def run_dir(self) -> Path:
+        return self.folder / "run"
+
+    @property
+    def status_path(self) -> Path:
+        return self.folder / STATUS_FILE
+
+
+def is_scene_folder(path: Path) -> bool:
+    """Whether `path` is an EndoNeRF-layout scene folder (it holds poses_bounds.npy)."""
+    return path.is_dir() and (path / POSES_FILE).is_file()
+
+
+def import_stage(job: ClipJob) -> Path:
+    """The clip's scene folder: the clip itself when it is one, else OUT/<name>/scene (imported
+    now unless a complete one is there). Loading it checks every file."""
+    set_threads(job.threads)
+    if is_scene_folder(job.source):
+        scene_dir = job.source
+    else:
+        scene_dir = job.folder / "scene"
+        if not is_scene_folder(scene_dir):
+            shutil.rmtree(scene_dir, ignore_errors=True)  # what a killed import left
+            import_scene(job.source, scene_dir, ImportConfig())
+    load_scene(scene_dir)
+    return scene_dir
+
+
+def train_stage(job: ClipJob, scene_dir: Path) -> Path:
+    """Train the clip's run to its end, resuming from its checkpoint when it has one."""
+    set_threads(job.threads)
+    with run_lock(job.run_dir, create=True):
+        resume = (job.run_dir / CHECKPOINT).is_file()
+        train_run(method_config(job.method), scene_dir, job.run_dir, resume, job.iterations)
+    return job.run_dir
+
+
+def eval_stage(job: ClipJob, run_dir: Path) -> Path:
+    """Evaluate the run on its test frames (writes RUN/metrics.json)."""
+    set_threads(job.threads)
+    with run_lock(run_dir):
+        evaluate_and_report(run_dir, EvalOptions(geometry=job.geometry))
+    return run_dir
+
+
+def render_stage(job: ClipJob, run_dir: Path) -> Path:
+    """Render the run's videos into RUN/videos."""
+    set_threads(job.threads)
+    with run_lock(run_dir):
+        write_run_videos(load_trained_run(run_dir), run_dir / "videos", job.fps)
+    return run_dir
+
+
+def run_clip_here(job: ClipJob) -> dict:
+    """Every stage of `job` in this process, one after another; records and returns its
+    status (a failure is recorded, not raised)."""
+    started = time.perf_counter()
+    stage = STAGES[0]
+    try:
+        scene_dir = import_stage(job)
+        stage = "train"
+        run_dir = train_stage(job, scene_dir)
+        stage = "eval"
+        eval_stage(job, run_dir)
+        stage = "render"
+        render_stage(job, run_dir)
+    except Exception as err:  # recorded per clip; the batch goes on
+        return record_status(job, FAILED, time.perf_counter() - started, 1, stage, str(err))
+    return record_status(job, DONE, time.perf_counter() - started, 1)
+
+
+@dataclass
+class ClipStatus:
+    """What status.json says about a clip."""
+
+    clip: str  # the source path
+    state: str  # DONE or FAILED
+    seconds: float  # wall time of the invocation that finished it
+    attempts: int  # attempts of the failing stage (1 + retries) or 1
+    stage: str = ""  # the failing stage
+    error: str = ""  # its error
+
+
+def record_status(job: ClipJob, state: str, seconds: float, attempts: int, stage: str = "",
+                  error: str = "") -> dict:
+    """Write OUT/<name>/status.json and return its contents."""
+    status = asdict(ClipStatus(str(job.source), state, round(seconds, 2), attempts, stage, error))
+    job.folder.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(job.status_path, json.dumps(status, indent=2) + "\n")
+    return status
+
+
+def read_status(job: ClipJob) -> dict | None:
+    """The clip's status.json, or None when it has none (never finished) or it is unreadable."""
+    try:
+        status = json.loads(job.status_path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return status if isinstance(status, dict) and status.get("state") in (DONE, FAILED) else None
+
+
+def trained_iterations(run_dir: Path) -> int:
+    """The last logged iteration of a run (0 before its first log line)."""
+    try:
+        lines = (run_dir / LOG_FILE).read_text().splitlines()
+        return int(json.loads(lines[-1])["iteration"]) if lines else 0
+    except (OSError, ValueError, KeyError, IndexError):
+        return 0
+
+
+def summary_row(job: ClipJob) -> dict:
+    """The clip's status with its run's metrics (scalar values only)."""
+    row = {"name": job.name, **(read_status(job) or {"clip": str(job.source), "state": "pending"})}
+    try:
+        metrics = json.loads((job.run_dir / METRICS_FILE).read_text())
+    except (OSError, json.JSONDecodeError):
+        metrics = {}
+    if row["state"] == DONE:
+        row.update({key: value for key, value in metrics.items()
+                    if isinstance(value, (int, float, str)) or value is None})
+    return row
