@@ -57,19 +57,20 @@ def test_temporary_names_are_unique(tmp_path, monkeypatch):
 def test_a_video_stopped_part_way_leaves_the_previous_one(tmp_path):
     import numpy as np
 
-    from surgsplat.export.video import write_video
+    from surgsplat.export.video import VideoWriter
 
     frames = [np.full((16, 16, 3), 40 * i, np.uint8) for i in range(4)]
     path = tmp_path / "rgb.mp4"
-    assert write_video(path, frames, fps=5) == 4
+    with VideoWriter(path, fps=5) as video:
+        for frame in frames:
+            video.add(frame)
+    assert video.count == 4
     before = path.read_bytes()
 
-    def stopped():
-        yield from frames[:2]
+    with pytest.raises(KeyboardInterrupt), VideoWriter(path, fps=5) as video:
+        for frame in frames[:2]:
+            video.add(frame)
         raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        write_video(path, stopped(), fps=5)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rgb.mp4"]
 

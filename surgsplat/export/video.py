@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
-from collections.abc import Iterable
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -45,20 +43,6 @@ class VideoWriter:
 
     def __exit__(self, *exc) -> bool:
         return self._stack.__exit__(*exc)
-
-
-def write_video(path: Path, frames: Iterable[np.ndarray], fps: float = 15.0) -> int:
-    """Write uint8 RGB frames [H, W, 3] (all the same size, H and W even) to an H.264 mp4,
-    atomically (a stop part-way leaves the previous file, or none); returns the number of
-    frames written."""
-    frames = iter(frames)
-    first = next(frames, None)
-    if first is None:
-        return 0
-    with VideoWriter(path, fps) as video:
-        for frame in itertools.chain([first], frames):
-            video.add(frame)
-    return video.count
 
 
 def even_size(image: np.ndarray) -> np.ndarray:

@@ -1,6 +1,5 @@
 """Occluded-tissue metrics: the render under the tool against the phantom's tissue-only truth."""
 
-import dataclasses
 import math
 
 import numpy as np
@@ -8,7 +7,7 @@ import torch
 
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.phantom.generate import TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
-from surgsplat.data.scene import load_scene, read_image
+from surgsplat.data.scene import Frame, load_scene, read_image
 from surgsplat.eval.run_metrics import occluded_row
 
 
@@ -41,5 +40,7 @@ def test_frames_without_truth_or_tool_give_no_row(small_phantom, tmp_path):
     scene = load_scene(small_phantom)
     frame = _frame_with_tool(scene)
     assert occluded_row(frame.image, frame.depth, frame, tmp_path) == {}
-    toolless = dataclasses.replace(frame, tool=torch.zeros_like(frame.tool))
+    toolless = Frame(index=frame.index, time=frame.time, image=frame.image, depth=frame.depth,
+                     is_test=frame.is_test, camera=frame.camera,
+                     tool=torch.zeros_like(frame.tool), fov=frame.fov)
     assert occluded_row(toolless.image, toolless.depth, toolless, small_phantom) == {}
