@@ -13,6 +13,13 @@ Suite `endoplanar` (issue 9): deform3dgs; endoplanar without its normal loss; en
 deform3dgs on the moving-camera phantom with known poses. Targets: endoplanar psnr_tissue >= 38
 dB, median normal error <= 5 deg, depth_rmse_mm no worse than deform3dgs, training time within
 15% of deform3dgs; the moving-camera run psnr_tissue >= 35 dB.
+
+Suite `physiosplat` (issue 14): deform3dgs; endogaussian, which is PhysioSplat's Table 2 row (a)
+(the monolithic HexPlane 4DGS baseline); rows (b) +tool/tissue decomposition, (c) +biomechanics
+and (d) +specular (the full `physiosplat` preset); and the full preset trained with tool masks
+dilated and eroded by 10 px (`train.tool_mask_offset_px`). Targets: physiosplat psnr_occluded
+>= 3 dB above the better of deform3dgs and endogaussian, psnr_tissue no lower than
+endogaussian, 0 collisions, training time <= 2x endogaussian, peak RSS <= 4 GB.
 """
 
 from __future__ import annotations
@@ -63,6 +70,11 @@ class Suite:
     ratio_metrics: tuple[str, ...] = ()  # metrics also reported as <key>_ratio to the baseline
 
 
+PHYSIOSPLAT_WITHOUT_BIOMECHANICS = (
+    "components.biomechanics=null", "losses.strain=null", "losses.collision=null",
+    "components.deformation.volume_samples=0", "losses.volume=null")
+PHYSIOSPLAT_WITHOUT_SPECULAR = ("components.specular=null", "gaussians.sh_degree=1")
+
 SUITES = {
     "endoplanar": Suite(
         cases=(
@@ -76,6 +88,23 @@ SUITES = {
                  "normal_error_deg_median", "normal_error_deg_mean", "chamfer_mm",
                  "p2s_median_mm"),
         baseline="deform3dgs", ratio_metrics=("depth_rmse_mm",)),
+    "physiosplat": Suite(
+        cases=(
+            Case("deform3dgs", "deform3dgs", "pulling"),
+            Case("endogaussian", "endogaussian", "pulling"),
+            Case("physiosplat-b-decomposition", "physiosplat", "pulling",
+                 PHYSIOSPLAT_WITHOUT_BIOMECHANICS + PHYSIOSPLAT_WITHOUT_SPECULAR),
+            Case("physiosplat-c-biomechanics", "physiosplat", "pulling",
+                 PHYSIOSPLAT_WITHOUT_SPECULAR),
+            Case("physiosplat", "physiosplat", "pulling"),
+            Case("physiosplat-masks-dilated-10px", "physiosplat", "pulling",
+                 ("train.tool_mask_offset_px=10",)),
+            Case("physiosplat-masks-eroded-10px", "physiosplat", "pulling",
+                 ("train.tool_mask_offset_px=-10",)),
+        ),
+        metrics=("psnr_tissue", "ssim", "psnr_occluded", "depth_rmse_occluded_mm", "psnr_specular",
+                 "depth_rmse_mm", "chamfer_mm", "collisions", "arap_strain_mean"),
+        baseline="endogaussian"),
 }
 
 

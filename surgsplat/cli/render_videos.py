@@ -37,8 +37,10 @@ def depth_range(run: TrainedRun) -> tuple[float, float]:
     return float(values.quantile(0.01)), float(values.quantile(0.99))
 
 
-def write_run_videos(run: TrainedRun, out_dir: Path, fps: float) -> list[Path]:
-    """Render every frame of the run's scene; write rgb, depth and side-by-side videos."""
+def write_run_videos(run: TrainedRun, out_dir: Path, fps: float,
+                     tissue_only: bool = False) -> list[Path]:
+    """Render every frame of the run's scene; write rgb, depth and side-by-side videos; with
+    `tissue_only`, of the tissue-only render (the tool left out)."""
     near, far = depth_range(run)
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
     frames = run.scene.frames
@@ -47,7 +49,8 @@ def write_run_videos(run: TrainedRun, out_dir: Path, fps: float) -> list[Path]:
         task = bar.add_task("render", total=len(frames))
         for frame in frames:
             camera = frame.camera
-            out = render_frame(run.model, camera, FrameTime(frame.index, frame.time), background)
+            when = FrameTime(frame.index, frame.time, tissue_only=tissue_only)
+            out = render_frame(run.model, camera, when, background)
             rgb = to_uint8(out.rgb.numpy())
             depth = colorize_depth(out.depth.numpy(), near, far)
             normals, valid, _ = surface_normals(out, camera.K)
@@ -68,6 +71,9 @@ def render_command(
     fps: Annotated[float, typer.Option(help="Frames per second of the videos.")] = 15.0,
     data: Annotated[Path | None, typer.Option(
         help="Scene folder (default: the run's; its content must be the run's scene).")] = None,
+    tool_free: Annotated[bool, typer.Option(
+        "--tool-free", help="Render the tissue only, the tool left out (methods with a tool "
+        "field, e.g. physiosplat); default folder RUN/videos_tool_free.")] = False,
 ) -> None:
     """Render RGB, colour-mapped depth, normal maps and input|render|depth side-by-side mp4
     videos."""
@@ -75,5 +81,9 @@ def render_command(
         raise SurgsplatError(f"--fps must be a number in (0, {MAX_FPS:g}], got {fps}")
     with run_lock(run_dir):
         run = load_trained_run(run_dir, data)
-        paths = write_run_videos(run, out or run_dir / "videos", fps)
+        if tool_free and not run.model.separates_tool:
+            raise SurgsplatError(f"--tool-free: method {run.config.name!r} of {run_dir} has no "
+                                 "tool field to leave out (train e.g. --method physiosplat)")
+        default = run_dir / ("videos_tool_free" if tool_free else "videos")
+        paths = write_run_videos(run, out or default, fps, tissue_only=tool_free)
     Console().print("videos: " + ", ".join(str(p) for p in paths))

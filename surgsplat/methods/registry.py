@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.fields.hexplane import HexPlaneConfig
+from surgsplat.losses.biomechanics import BiomechanicsConfig
 from surgsplat.losses.depth import DepthLossConfig
 from surgsplat.losses.photometric import PhotometricConfig
 from surgsplat.methods.config import MethodConfig
@@ -20,6 +21,8 @@ from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig
 from surgsplat.model.init_points import InitConfig
 from surgsplat.model.planar import PlanarConfig
+from surgsplat.model.specular import SpecularConfig
+from surgsplat.model.tool_field import ToolFieldConfig
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,23 @@ def endoplanar() -> MethodConfig:
         init=InitConfig(fusion="mogf"))
 
 
+def physiosplat() -> MethodConfig:
+    """Weights of Eq. 3 and 8: lambda_mask 0.1; lambda_biomech 0.01 times lambda_strain 0.1,
+    lambda_col 1.0 and lambda_vol 0.05."""
+    return MethodConfig(
+        name="physiosplat",
+        components={"deformation": HexPlaneConfig(volume_samples=512), "tool": ToolFieldConfig(),
+                    "exposure": ExposureConfig(), "specular": SpecularConfig(),
+                    "biomechanics": BiomechanicsConfig(), "photometric": PhotometricConfig(),
+                    "depth": DepthLossConfig()},
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05),
+                "plane_tv": LossWeight(1e-4), "time_smoothness": LossWeight(1e-3),
+                "mask": LossWeight(0.1), "strain": LossWeight(1e-3),
+                "collision": LossWeight(1e-2), "volume": LossWeight(5e-4)},
+        gaussians=GaussianConfig(sh_degree=0),
+        init=InitConfig(fusion="mapf"))
+
+
 PRESETS: dict[str, Preset] = {
     "deform3dgs": Preset("Deform3DGS baseline: per-Gaussian Gaussian-basis deformation, "
                          "motion-aware point fusion, L1 + D-SSIM and depth L1", deform3dgs),
@@ -68,6 +88,9 @@ PRESETS: dict[str, Preset] = {
                            "time smoothness", endogaussian),
     "endoplanar": Preset("EndoPlanar: flattened Gaussians with unbiased plane depth, inverse-depth "
                          "loss, edge-aware depth-normal loss, MOG2 point fusion", endoplanar),
+    "physiosplat": Preset("PhysioSplat: tool Gaussians with per-frame rigid motion and semantic "
+                          "logits beside HexPlane tissue, tool-free rendering, ARAP strain, tool "
+                          "collision and volume losses, co-located specular lobe", physiosplat),
 }
 
 

@@ -10,6 +10,8 @@ poses_bounds.npy (each frame's endoscope pose) and scene.json, the folder holds 
     gt/albedo/{stem}.png         tissue albedo
     gt/normals/{stem}.npy        float32 [H, W, 3] unit tissue normals in frame i's camera space
     gt/meshes/{stem}.ply         the tissue surface at time i / N, world frame, mm (binary PLY)
+    gt/highlights/{stem}.png     255 where the tissue's specular highlight adds more than
+                                 HIGHLIGHT_THRESHOLD to the image (before clipping), else 0
     gt/exposure.json             list of the per-frame exposure factors
     gt/camera_poses.npy          float64 [N, 4, 4] OpenCV world-to-camera of every frame
 
@@ -33,8 +35,8 @@ from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem
 from surgsplat.data.phantom.camera_path import CAMERAS
 from surgsplat.data.phantom.mesh import grid_mesh
 from surgsplat.data.phantom.motion import MOTIONS
-from surgsplat.data.phantom.scene import PhantomScene
-from surgsplat.data.phantom.shading import METAL, WET_TISSUE
+from surgsplat.data.phantom.scene import PhantomFrame, PhantomScene
+from surgsplat.data.phantom.shading import METAL, WET_TISSUE, shade
 from surgsplat.data.ply import write_ply_mesh
 from surgsplat.errors import SurgsplatError
 
@@ -44,6 +46,9 @@ TISSUE_DEPTH_DIR = f"{GT_DIR}/tissue_depth"
 ALBEDO_DIR = f"{GT_DIR}/albedo"
 NORMALS_DIR = f"{GT_DIR}/normals"
 MESHES_DIR = f"{GT_DIR}/meshes"
+HIGHLIGHTS_DIR = f"{GT_DIR}/highlights"
+HIGHLIGHT_THRESHOLD = 0.1
+"""Specular radiance (image units, 1 = white) above which a tissue pixel is a highlight."""
 EXPOSURE_FILE = f"{GT_DIR}/exposure.json"
 CAMERA_POSES_FILE = f"{GT_DIR}/camera_poses.npy"
 
@@ -142,7 +147,8 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
                                              f"seed {config.seed}",
                      extra=_extra(config, preset, num_frames, scene))
     writer = SceneWriter(out_dir, focal=preset.focal, meta=meta)
-    for sub in (TISSUE_IMAGES_DIR, TISSUE_DEPTH_DIR, ALBEDO_DIR, NORMALS_DIR, MESHES_DIR):
+    for sub in (TISSUE_IMAGES_DIR, TISSUE_DEPTH_DIR, ALBEDO_DIR, NORMALS_DIR, MESHES_DIR,
+                HIGHLIGHTS_DIR):
         (out_dir / sub).mkdir(parents=True, exist_ok=True)
     exposures, poses = [], []
     for index in range(num_frames):
@@ -153,6 +159,7 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
         _write_rgb(out_dir / ALBEDO_DIR / f"{stem}.png", frame.albedo)
         np.save(out_dir / TISSUE_DEPTH_DIR / f"{stem}.npy", frame.tissue_depth)
         np.save(out_dir / NORMALS_DIR / f"{stem}.npy", frame.normals)
+        cv2.imwrite(str(out_dir / HIGHLIGHTS_DIR / f"{stem}.png"), _highlights(scene, frame))
         vertices, faces, colors = grid_mesh(frame.tissue_depth, scene.xn, scene.yn,
                                             preset.mesh_step, frame.albedo)  # camera space
         camera_to_world = scene.camera_path.camera_to_world(scene.time(index))
@@ -165,6 +172,16 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
     (out_dir / EXPOSURE_FILE).write_text(json.dumps(exposures) + "\n")
     np.save(out_dir / CAMERA_POSES_FILE, np.stack(poses))
     writer.finish()
+
+
+def _highlights(scene: PhantomScene, frame: PhantomFrame) -> np.ndarray:
+    """uint8 [H, W]: 255 where the tissue's specular term alone (zero albedo) exceeds
+    HIGHLIGHT_THRESHOLD."""
+    depth = frame.tissue_depth.astype(np.float64)
+    points = np.stack([depth * scene.xn, depth * scene.yn, depth], axis=-1)
+    specular = shade(points, frame.normals.astype(np.float64), np.zeros_like(points), WET_TISSUE,
+                     scene.light, frame.exposure)[..., 0]
+    return np.where(specular > HIGHLIGHT_THRESHOLD, 255, 0).astype(np.uint8)
 
 
 def _write_rgb(path: Path, image: np.ndarray) -> None:
@@ -186,6 +203,7 @@ def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
         "tool": asdict(scene.geometry), "trocar_mm": scene.trocar.tolist(),
         "gt": {"tissue_images": TISSUE_IMAGES_DIR, "tissue_depth": TISSUE_DEPTH_DIR,
                "albedo": ALBEDO_DIR, "normals": NORMALS_DIR, "meshes": MESHES_DIR,
+               "highlights": HIGHLIGHTS_DIR,
                "exposure": EXPOSURE_FILE, "camera_poses": CAMERA_POSES_FILE,
                "depth_unit": "mm", "frames": "depth and normals: per-frame camera space; "
                                              "meshes: world frame (= frame 0's camera)"},
