@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from surgsplat.model.component import Component, ComponentConfig, RenderContext
-from surgsplat.model.physics import (NeighbourGraph, arap_strain, collision_energy, hull_sdf,
+from surgsplat.model.physics import (NeighbourGraph, arap_strain, collision_energy,
                                      neighbour_graph, tissue_members, tool_hull)
 
 
@@ -67,11 +67,12 @@ class Biomechanics(Component):
             terms["strain"] = self.strain(context, tissue)
         if "collision" in active:
             terms["collision"] = means.sum() * 0.0
-            planes = None if tissue.all() else tool_hull(means, context.state.opacities, ~tissue,
-                                                         self.config.min_hull_opacity)
-            if planes is not None:
-                sdf = hull_sdf(means[tissue], planes)
-                terms["collision"] = collision_energy(sdf, self.config.collision_margin).mean()
+            hull = None if tissue.all() else tool_hull(means, context.state.opacities, ~tissue,
+                                                       self.config.min_hull_opacity)
+            if hull is not None:
+                margin = self.config.collision_margin
+                sdf = hull.sdf(means[tissue], 2 * margin)
+                terms["collision"] = collision_energy(sdf, margin).mean()
         return terms
 
     def strain(self, context: RenderContext, tissue: Tensor) -> Tensor:

@@ -29,6 +29,25 @@ def tissue_members(params) -> Tensor | None:
     return None if logits is None else logits.detach() >= 0.0
 
 
+@dataclass
+class ToolHull:
+    """The convex hull of a point set: its facet planes and its axis-aligned bounds."""
+
+    planes: Tensor  # [F, 4] unit outward normal and offset: n . x + b <= 0 inside
+    lo: Tensor  # [3] lower corner of the points' bounding box
+    hi: Tensor  # [3] upper corner
+
+    def sdf(self, x: Tensor, clear: float) -> Tensor:
+        """[N, 3] -> [N] signed distance proxy max_f (n_f . x + b_f); points farther than
+        `clear` outside the bounding box are not evaluated and get `clear` (at least that far
+        from the hull), which bounds the cost to the points near the tool."""
+        near = ((x.detach() >= self.lo - clear) & (x.detach() <= self.hi + clear)).all(dim=1)
+        values = torch.full((x.shape[0],), float(clear), dtype=x.dtype)
+        if near.any():
+            values = values.index_put((near,), hull_sdf(x[near], self.planes))
+        return values
+
+
 def hull_planes(points: Tensor) -> Tensor | None:
     """[K, 3] points -> [F, 4] facet planes (unit outward normal, offset) of their convex hull,
     with n . x + b <= 0 inside; None when the points span no volume (fewer than 4, or flat)."""
@@ -99,8 +118,15 @@ def collision_energy(sdf: Tensor, margin: float) -> Tensor:
     return torch.relu(margin - sdf).square()
 
 
-def tool_hull(means: Tensor, opacities: Tensor, tool: Tensor, min_opacity: float) -> Tensor | None:
-    """Planes [F, 4] of the convex hull of the tool Gaussians (bool [N]) at least `min_opacity`
-    opaque, from their means [N, 3] at one time; None without a hull."""
-    chosen = tool & (opacities.detach() >= min_opacity)
-    return hull_planes(means.detach()[chosen]) if chosen.any() else None
+def tool_hull(means: Tensor, opacities: Tensor, tool: Tensor, min_opacity: float,
+              max_points: int = 512) -> ToolHull | None:
+    """The convex hull of the tool Gaussians (bool [N]) at least `min_opacity` opaque, from
+    their means [N, 3] at one time (no gradient), spanned by at most `max_points` of them (an
+    evenly strided subset, which keeps the facet count small); None without a hull."""
+    chosen = means.detach()[tool & (opacities.detach() >= min_opacity)]
+    if chosen.shape[0] > max_points:
+        chosen = chosen[torch.linspace(0, chosen.shape[0] - 1, max_points).long()]
+    planes = hull_planes(chosen)
+    if planes is None:
+        return None
+    return ToolHull(planes, chosen.min(dim=0).values, chosen.max(dim=0).values)

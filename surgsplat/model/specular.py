@@ -80,10 +80,11 @@ class SpecularLobe(Component):
 def specular_lobe(depth: Tensor, K: Tensor, albedo: Tensor, sharpness: Tensor) -> Tensor:
     """[H, W] co-located lobe albedo exp((n . v - 1) sharpness) with n the normal of the depth
     map [H, W] (scene units) and v the unit direction from the surface to the camera; 0 where
-    the depth normal is not valid."""
-    normals, valid = depth_normals(depth, K)  # facing away from the camera
-    height, width = depth.shape
-    rays = torch.nn.functional.normalize(pixel_rays(K, width, height, depth.dtype), dim=-1)
-    cosine = (normals * rays).sum(-1).clamp(0.0, 1.0)  # n_out . v with n_out = -n, v = -ray
+    the depth normal is not valid. Differentiable in albedo and sharpness [H, W], not depth."""
+    with torch.no_grad():
+        normals, valid = depth_normals(depth, K)  # facing away from the camera
+        height, width = depth.shape
+        rays = torch.nn.functional.normalize(pixel_rays(K, width, height, depth.dtype), dim=-1)
+        cosine = (normals * rays).sum(-1).clamp(0.0, 1.0)  # n_out . v, n_out = -n, v = -ray
     lobe = albedo * torch.exp((cosine - 1.0) * sharpness)
     return torch.where(valid, lobe, torch.zeros_like(lobe))

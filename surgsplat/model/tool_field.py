@@ -42,8 +42,7 @@ from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, 
                                        InitialPoints, ParamGroup, RenderContext, SceneInfo,
                                        SetupContext)
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.model.physics import (SEMANTIC_KEY, arap_strain, hull_sdf, neighbour_graph,
-                                     tool_hull)
+from surgsplat.model.physics import SEMANTIC_KEY, arap_strain, neighbour_graph, tool_hull
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
@@ -192,7 +191,8 @@ class ToolField(Component):
     def pose(self, index: int) -> tuple[Tensor, Tensor]:
         """Rotation vector [3] and translation [3] (scene units) of frame `index`: its own when
         registered; else linear between the registered neighbours when both show the tool, the
-        nearer one's otherwise (ties: one that shows the tool)."""
+        nearer one's otherwise (ties: one without the tool, so that no tool is drawn over tissue
+        on the evidence of one side only)."""
         index = min(max(index, 0), self.known.shape[0] - 1)
         if self.known[index] or not self.known.any():
             return self.rotations[index], self.translations[index] * self.unit
@@ -204,7 +204,7 @@ class ToolField(Component):
             rotation = torch.lerp(self.rotations[sides[0]], self.rotations[sides[1]], weight)
             translation = torch.lerp(self.translations[sides[0]], self.translations[sides[1]], weight)
             return rotation, translation * self.unit
-        nearest = min(sides, key=lambda side: (abs(side - index), not bool(self.seen[side])))
+        nearest = min(sides, key=lambda side: (abs(side - index), bool(self.seen[side])))
         return self.rotations[nearest], self.translations[nearest] * self.unit
 
     def transform(self, state: GaussianState, gaussians: GaussianModel,
@@ -247,9 +247,10 @@ class ToolField(Component):
         state, frame = context.state, context.frame
         tool = ~(context.gaussians.params[SEMANTIC_KEY] >= 0.0)
         weights = torch.ones(tool.shape[0])
-        planes = tool_hull(state.means, state.opacities, tool, self.config.min_hull_opacity)
-        if planes is not None:
-            weights[hull_sdf(state.means, planes) < self.config.densify_margin] = 0.0
+        hull = tool_hull(state.means, state.opacities, tool, self.config.min_hull_opacity)
+        if hull is not None:
+            margin = self.config.densify_margin
+            weights[hull.sdf(state.means, 2 * margin) < margin] = 0.0
         self._remember_tissue(frame)
         occluded, pixels = self._occluded(context, tool)
         if occluded.any():
@@ -284,10 +285,10 @@ class ToolField(Component):
                           when: FrameTime) -> Diagnostics:
         tool = ~(gaussians.params[SEMANTIC_KEY] >= 0.0)
         tissue = ~tool
-        planes = tool_hull(state.means, state.opacities, tool, self.config.min_hull_opacity)
+        hull = tool_hull(state.means, state.opacities, tool, self.config.min_hull_opacity)
         collisions = 0
-        if planes is not None and tissue.any():
-            collisions = int((hull_sdf(state.means[tissue], planes) < 0).sum())
+        if hull is not None and tissue.any():
+            collisions = int((hull.sdf(state.means[tissue], 1.0) < 0).sum())
         graph = neighbour_graph(gaussians.params["means"], tissue, self.config.strain_neighbours)
         strain = 0.0
         if tissue.any():
