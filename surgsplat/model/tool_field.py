@@ -10,7 +10,8 @@
   paper's per-frame increments gives the same map. Each frame has its own learnable pose (rotation
   vector, translation); held-out frames interpolate their training neighbours.
 - Initial tool Gaussians are the reference frame's tool pixels back-projected with the observed
-  depth (which sees the tool). Initial poses register, frame by frame in time order from the
+  depth (which sees the tool); without depth (monocular), at a fixed fraction of the initial
+  points' median depth. Initial poses register, frame by frame in time order from the
   reference, the canonical tool to each frame's back-projected tool pixels (point-to-point ICP,
   observed point to nearest model point, started from the neighbouring frame's pose). Frames that
   show no tool put it behind their camera, where it is culled.
@@ -63,6 +64,9 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     tool pixels)."""
     pixel_stride: int = 2
     """Use every stride-th tool pixel in x and y."""
+    monocular_tool_depth: float = 0.8
+    """Scenes without depth: tool pixels are placed at this fraction of the initial points'
+    median camera depth (in front of the tissue)."""
     init_logit: float = 4.0
     """Initial |s|: tissue Gaussians start at +init_logit, tool Gaussians at -init_logit."""
     semantic_lr: float = 0.05
@@ -111,8 +115,9 @@ class ToolField(Component):
     # ---- set-up ----
     def setup(self, context: SetupContext) -> None:
         self.unit.fill_(max(context.scene_extent, 1e-6))
-        frames = [f for f in context.frames if f.depth is not None]
-        clouds = {f.index: self._tool_pixels(f) for f in frames}
+        frames = list(context.frames)
+        clouds = {f.index: self._tool_pixels(f, self._depth_map(f, context.points))
+                  for f in frames}
         counted = {index: cloud[0].shape[0] for index, cloud in clouds.items()}
         if not counted or max(counted.values()) < 4:
             return
@@ -124,12 +129,23 @@ class ToolField(Component):
         self._reference = (means, colors)
         self._register_poses(means, {f.index: f for f in frames}, clouds, reference)
 
-    def _tool_pixels(self, frame) -> tuple[Tensor, Tensor]:
-        """World points [K, 3] and colours [K, 3] of the frame's tool pixels with depth."""
+    def _depth_map(self, frame, points: Tensor) -> Tensor:
+        """[H, W] depth of the frame's tool pixels: the observed depth, or without one
+        (monocular) `monocular_tool_depth` x the median camera depth of the initial points."""
+        if frame.depth is not None:
+            return frame.depth
+        world_to_camera = frame.camera.world_to_camera
+        depths = points @ world_to_camera[2, :3] + world_to_camera[2, 3]  # [M]
+        depth = self.config.monocular_tool_depth * float(depths.median())
+        return torch.full(frame.tool.shape, depth)
+
+    def _tool_pixels(self, frame, depth: Tensor) -> tuple[Tensor, Tensor]:
+        """World points [K, 3] and colours [K, 3] of the frame's tool pixels with depth > 0 in
+        `depth` [H, W]."""
         stride = torch.zeros_like(frame.tool)
         stride[::self.config.pixel_stride, ::self.config.pixel_stride] = True
-        mask = frame.tool & frame.fov & stride & (frame.depth > 0)
-        points = backproject(frame.depth, frame.camera.K, mask, frame.camera.camera_to_world)
+        mask = frame.tool & frame.fov & stride & (depth > 0)
+        points = backproject(depth, frame.camera.K, mask, frame.camera.camera_to_world)
         return points, frame.image[mask]
 
     @torch.no_grad()
