@@ -127,8 +127,9 @@ class ToolField(Component):
         reference = max(counted, key=counted.get)
         means, colors = clouds[reference]
         if means.shape[0] > self.config.max_points:
-            keep = torch.randperm(means.shape[0], generator=torch.Generator().manual_seed(0))
-            means, colors = means[keep[:self.config.max_points]], colors[keep[:self.config.max_points]]
+            generator = torch.Generator().manual_seed(0)
+            keep = torch.randperm(means.shape[0], generator=generator)[:self.config.max_points]
+            means, colors = means[keep], colors[keep]
         self._reference = (means, colors)
         self._register_poses(means, {f.index: f for f in frames}, clouds, reference)
 
@@ -186,7 +187,8 @@ class ToolField(Component):
         depth = placed @ world_to_camera[2, :3] + world_to_camera[2, 3]
         push = float(depth.max()) + float(self.unit)
         behind = translation - push * world_to_camera[2, :3]  # camera z axis in the world
-        self.rotations[frame.index] = torch.from_numpy(Rotation.from_matrix(rotation).as_rotvec()).float()
+        rotvec = Rotation.from_matrix(rotation).as_rotvec()
+        self.rotations[frame.index] = torch.from_numpy(rotvec).float()
         self.translations[frame.index] = torch.from_numpy(behind).float() / self.unit
 
     def initial_points(self, context: SetupContext) -> InitialPoints | None:
@@ -220,8 +222,9 @@ class ToolField(Component):
         sides = [int(side) for side in (before[-1:], after[:1]) if side.numel()]
         if len(sides) == 2 and self.seen[sides[0]] and self.seen[sides[1]]:
             weight = (index - sides[0]) / (sides[1] - sides[0])
-            rotation = torch.lerp(self.rotations[sides[0]], self.rotations[sides[1]], weight)
-            translation = torch.lerp(self.translations[sides[0]], self.translations[sides[1]], weight)
+            first, last = sides
+            rotation = torch.lerp(self.rotations[first], self.rotations[last], weight)
+            translation = torch.lerp(self.translations[first], self.translations[last], weight)
             return rotation, translation * self.unit
         nearest = min(sides, key=lambda side: (abs(side - index), bool(self.seen[side])))
         return self.rotations[nearest], self.translations[nearest] * self.unit
@@ -293,7 +296,8 @@ class ToolField(Component):
         centre = projection.means2d.detach().floor().long()
         inside = ((centre[:, 0] >= 0) & (centre[:, 0] < width) & (centre[:, 1] >= 0)
                   & (centre[:, 1] < height) & (projection.radii > 0))
-        pixels = torch.stack([centre[:, 0].clamp(0, width - 1), centre[:, 1].clamp(0, height - 1)], 1)
+        pixels = torch.stack([centre[:, 0].clamp(0, width - 1),
+                              centre[:, 1].clamp(0, height - 1)], dim=1)
         behind_tool = output.extras[TOOL_CHANNEL][pixels[:, 1], pixels[:, 0], 0] > 0.5
         nearer = output.depth.detach()[pixels[:, 1], pixels[:, 0]] < projection.depths.detach()
         return inside & ~tool & behind_tool & nearer, pixels

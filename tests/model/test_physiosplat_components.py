@@ -182,7 +182,8 @@ def test_volume_energy_gradient_matches_finite_differences():
         field.matrix = matrix
         return (field.jacobian_determinants(params, rows, 0.0) - 1.0).square().sum()
 
-    matrix = 0.1 * torch.randn(3, 3, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    generator = torch.Generator().manual_seed(3)
+    matrix = 0.1 * torch.randn(3, 3, generator=generator, dtype=torch.float64)
     assert torch.autograd.gradcheck(energy, (matrix.requires_grad_(),))
 
 
