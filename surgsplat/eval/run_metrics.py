@@ -70,7 +70,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     angles: list[torch.Tensor] = []
     normal_source = None
     render_seconds = 0.0
-    summed: dict[str, float] = {}  # diagnostics summed over the test frames
+    summed: dict[str, float] = {}  # diagnostics summed over the test frames (counts stay int)
     for frame in frames:
         started = time.perf_counter()
         out = render_frame(run.model, frame.camera, FrameTime(frame.index, frame.time), background)
@@ -90,7 +90,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         diagnostics = run.model.diagnostics(FrameTime(frame.index, frame.time))
         row.update(diagnostics.averaged)
         for key, value in diagnostics.summed.items():
-            summed[key] = summed.get(key, 0.0) + value
+            summed[key] = summed.get(key, 0) + value
         gt_mesh = mesh_path(scene.root, frame.index)
         if options.geometry and gt_mesh.is_file():
             row.update(frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
