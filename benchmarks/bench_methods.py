@@ -28,6 +28,13 @@ iteration LUMISTATE_STAGE2_ITER, a third of the --iters 400 the suite is run wit
 (hivar): lumistate psnr_tissue >= deform3dgs + 1 dB, reflectance_error and r_var <= 0.5 x
 deform3dgs's (the naive baseline: its rendered colour scored as reflectance); livar: no PSNR
 loss over 0.3 dB; training time <= 1.5 x deform3dgs.
+
+Suite `physiosplat` (issue 14): deform3dgs; endogaussian, which is PhysioSplat's Table 2 row (a)
+(the monolithic HexPlane 4DGS baseline); rows (b) +tool/tissue decomposition, (c) +biomechanics
+and (d) +specular (the full `physiosplat` preset); and the full preset trained with tool masks
+dilated and eroded by 10 px (`train.tool_mask_offset_px`). Targets: physiosplat psnr_occluded
+>= 3 dB above the better of deform3dgs and endogaussian, psnr_tissue no lower than
+endogaussian, 0 collisions, training time <= 2x endogaussian, peak RSS <= 4 GB.
 """
 
 from __future__ import annotations
@@ -87,6 +94,11 @@ class Suite:
     baseline_by_phantom: bool = False  # ratios against the baseline's method on each row's phantom
 
 
+PHYSIOSPLAT_WITHOUT_BIOMECHANICS = (
+    "components.biomechanics=null", "losses.strain=null", "losses.collision=null",
+    "components.deformation.volume_samples=0", "losses.volume=null")
+PHYSIOSPLAT_WITHOUT_SPECULAR = ("components.specular=null", "gaussians.sh_degree=1")
+
 SUITES = {
     "endoplanar": Suite(
         cases=(
@@ -128,6 +140,23 @@ SUITES = {
                  "reflectance_error_ratio", "r_var", "r_var_ratio", "shading_error"),
         baseline="deform3dgs-hivar", ratio_metrics=("reflectance_error", "r_var"),
         baseline_by_phantom=True),
+    "physiosplat": Suite(
+        cases=(
+            Case("deform3dgs", "deform3dgs", "pulling"),
+            Case("endogaussian", "endogaussian", "pulling"),
+            Case("physiosplat-b-decomposition", "physiosplat", "pulling",
+                 PHYSIOSPLAT_WITHOUT_BIOMECHANICS + PHYSIOSPLAT_WITHOUT_SPECULAR),
+            Case("physiosplat-c-biomechanics", "physiosplat", "pulling",
+                 PHYSIOSPLAT_WITHOUT_SPECULAR),
+            Case("physiosplat", "physiosplat", "pulling"),
+            Case("physiosplat-masks-dilated-10px", "physiosplat", "pulling",
+                 ("train.tool_mask_offset_px=10",)),
+            Case("physiosplat-masks-eroded-10px", "physiosplat", "pulling",
+                 ("train.tool_mask_offset_px=-10",)),
+        ),
+        metrics=("psnr_tissue", "ssim", "psnr_occluded", "depth_rmse_occluded_mm", "psnr_specular",
+                 "depth_rmse_mm", "chamfer_mm", "collisions", "arap_strain_mean"),
+        baseline="endogaussian"),
 }
 
 

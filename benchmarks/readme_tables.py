@@ -23,7 +23,10 @@ RESULTS = ROOT / "benchmarks" / "results"
 
 def cell(row: dict, key: str, spec: str) -> str:
     """row[key] formatted with `spec`, or empty when the row lacks it."""
-    return format(row[key], spec) if row.get(key) is not None else ""
+    value = row.get(key)
+    if value is None:
+        return ""
+    return format(round(value) if spec == "d" else value, spec)
 
 
 def render_table(report: dict) -> str:

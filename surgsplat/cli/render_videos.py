@@ -80,10 +80,10 @@ def illumination_component(run: TrainedRun) -> LumiState:
 
 def write_run_videos(run: TrainedRun, out_dir: Path, fps: float,
                      channels: tuple[str, ...] = DEFAULT_CHANNELS,
-                     relight: str | int | None = None) -> list[Path]:
+                     relight: str | int | None = None, tissue_only: bool = False) -> list[Path]:
     """Render every frame of the run's scene (under illumination `relight` when given, see
-    LumiState.relit); write one video per channel in `channels`, frame by frame (memory does not
-    grow with the clip)."""
+    LumiState.relit; with `tissue_only`, the tissue-only render, the tool left out); write one
+    video per channel in `channels`, frame by frame (memory does not grow with the clip)."""
     near, far = depth_range(run)
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
     frames = run.scene.frames
@@ -97,7 +97,8 @@ def write_run_videos(run: TrainedRun, out_dir: Path, fps: float,
         task = bar.add_task("render", total=len(frames))
         for frame in frames:
             camera = frame.camera
-            out = render_frame(run.model, camera, FrameTime(frame.index, frame.time), background)
+            when = FrameTime(frame.index, frame.time, tissue_only=tissue_only)
+            out = render_frame(run.model, camera, when, background)
             missing = [name for name in channels if name in EXTRA_CHANNELS
                        and name not in out.extras]
             if missing:
@@ -133,6 +134,9 @@ def render_command(
         help="Render under another illumination state: 'uniform' (the training frames' mean, "
              "constant over time) or a frame index (that frame's); lumistate runs only. Files "
              "are named NAME-relit-SOURCE.mp4.")] = None,
+    tool_free: Annotated[bool, typer.Option(
+        "--tool-free", help="Render the tissue only, the tool left out (methods with a tool "
+        "field, e.g. physiosplat); default folder RUN/videos_tool_free.")] = False,
 ) -> None:
     """Render RGB, colour-mapped depth, normal maps and input|render|depth side-by-side mp4
     videos (or the --channels chosen)."""
@@ -141,6 +145,10 @@ def render_command(
     names = parse_channels(channels)
     with run_lock(run_dir):
         run = load_trained_run(run_dir, data)
+        if tool_free and not run.model.separates_tool:
+            raise SurgsplatError(f"--tool-free: method {run.config.name!r} of {run_dir} has no "
+                                 "tool field to leave out (train e.g. --method physiosplat)")
+        default = run_dir / ("videos_tool_free" if tool_free else "videos")
         source = parse_relight(relight, len(run.scene.frames))
-        paths = write_run_videos(run, out or run_dir / "videos", fps, names, source)
+        paths = write_run_videos(run, out or default, fps, names, source, tissue_only=tool_free)
     Console().print("videos: " + ", ".join(str(p) for p in paths))

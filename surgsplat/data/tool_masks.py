@@ -10,12 +10,15 @@ frame_561_endo_watershed_mask.png share (561,)) or by sorted order.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
+import cv2
 import numpy as np
+import torch
 
 from surgsplat.data.frames_source import name_numbers
-from surgsplat.data.scene import decode_image
+from surgsplat.data.scene import Scene, decode_image
 from surgsplat.errors import DataError, SurgsplatError
 
 MASK_MATCHES = ("auto", "number", "order")
@@ -93,3 +96,20 @@ def _unique_keys(files: list[Path], what: str) -> dict[tuple[int, ...], Path]:
                                          "match by order")
         by_key[key] = path
     return by_key
+
+
+def offset_tool_masks(scene: Scene, pixels: int) -> Scene:
+    """`scene` with every training frame's tool mask grown (pixels > 0) or shrunk (pixels < 0)
+    by |pixels| with a (2 |pixels| + 1)-pixel square kernel: imperfect segmentation, for
+    mask-robustness runs. Test frames keep their masks, so metrics see the true ones."""
+    if pixels == 0:
+        return scene
+    kernel = np.ones((2 * abs(pixels) + 1,) * 2, np.uint8)
+    change = cv2.dilate if pixels > 0 else cv2.erode
+    frames = []
+    for frame in scene.frames:
+        if not frame.is_test:
+            tool = change(frame.tool.numpy().astype(np.uint8), kernel)
+            frame = dataclasses.replace(frame, tool=torch.from_numpy(tool.astype(bool)))
+        frames.append(frame)
+    return dataclasses.replace(scene, frames=frames)

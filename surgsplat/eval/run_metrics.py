@@ -7,8 +7,11 @@ reconstructed surface: the rendered depth back-projected over tissue pixels with
 camera into the world frame; and normals against the ground-truth camera-space normals
 (gt/normals/<frame>.npy). What the tool hid is scored where the phantom has it: over the tool
 pixels (inside the field of view) of each test frame, the render against the tissue-only image
-(gt/tissue_images) and depth (gt/tissue_depth). Where the phantom has gt/albedo (and
-gt/shading), the reflectance x illumination decomposition is scored (see decomposition.py).
+(gt/tissue_images) and depth (gt/tissue_depth); a method that separates the tool is scored there
+on its tissue-only render. Highlights are scored where the phantom marks them
+(gt/highlights), and the components' diagnostics (e.g. tool collisions) join the metrics. Where
+the phantom has gt/albedo (and gt/shading), the reflectance x illumination decomposition is
+scored (see decomposition.py).
 """
 
 from __future__ import annotations
@@ -23,8 +26,8 @@ import torch
 
 from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.layout import frame_stem
-from surgsplat.data.phantom.generate import TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
-from surgsplat.data.scene import Camera, Frame, read_image, read_npy
+from surgsplat.data.phantom.generate import HIGHLIGHTS_DIR, TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
+from surgsplat.data.scene import Camera, Frame, read_image, read_npy, read_tool_mask
 from surgsplat.eval.geometry_metrics import (depth_rmse, geometry_metrics, point_to_surface,
                                              sample_surface)
 from surgsplat.eval.decomposition import (CONVENTIONS as DECOMPOSITION_CONVENTIONS,
@@ -76,6 +79,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     render_seconds = 0.0
     meshes = MeshExtractor(run.model, background=background) if options.geometry else None
     decomposition = DecompositionScores()
+    summed: dict[str, float] = {}  # diagnostics summed over the test frames (counts stay int)
     for frame in frames:
         started = time.perf_counter()
         out = render_frame(run.model, frame.camera, FrameTime(frame.index, frame.time), background)
@@ -86,7 +90,16 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
             valid = frame.tissue & (frame.depth > 0)
             if valid.any():
                 row["depth_rmse"] = depth_rmse(out.depth, frame.depth, frame.tissue)
-        row.update(occluded_row(out.rgb.clamp(0, 1), out.depth, frame, scene.root))
+        row.update(specular_row(pred, frame, scene.root))
+        hidden = out
+        if run.model.separates_tool:
+            hidden = render_frame(run.model, frame.camera,
+                                  FrameTime(frame.index, frame.time, tissue_only=True), background)
+        row.update(occluded_row(hidden.rgb.clamp(0, 1), hidden.depth, frame, scene.root))
+        diagnostics = run.model.diagnostics(FrameTime(frame.index, frame.time))
+        row.update(diagnostics.averaged)
+        for key, value in diagnostics.summed.items():
+            summed[key] = summed.get(key, 0) + value
         decomposition.add(frame, out.extras, out.rgb, scene.root)
         gt_mesh = mesh_path(scene.root, frame.index)
         if options.geometry and gt_mesh.is_file():
@@ -110,6 +123,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     metrics: dict = {"test_frames": len(frames), "iteration": run.iteration}
     for key, values in rows.items():
         metrics[key] = float(np.mean(values))
+    metrics.update(summed)
     if angles:
         pooled = torch.cat(angles)
         metrics["normal_error_deg_mean"] = float(pooled.mean())
@@ -137,6 +151,14 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         "psnr_occluded": "render vs gt/tissue_images over the tool pixels inside the field of "
                          "view of each test frame (what the tool hid), frames with tool pixels",
         "depth_rmse_occluded": "render vs gt/tissue_depth over the same pixels",
+        "occluded_render": "tissue-only render (tool left out) for methods that separate the "
+                           "tool, else the ordinary render",
+        "psnr_specular": "render vs image over the tissue pixels gt/highlights marks, frames "
+                         "with such pixels",
+        "collisions": "tissue Gaussians inside the convex hull of the tool Gaussians, summed "
+                      "over test frames (methods with a tool field)",
+        "arap_strain_mean": "Eq. 4 ARAP strain per tissue Gaussian over its canonical 16 "
+                            "nearest neighbours, scene units squared, mean over test frames",
         "geometry": "rendered depth back-projected over tissue pixels with the frame's camera "
                     "into the world frame vs gt tissue mesh",
         "mesh_geometry": "mesh_*: the frame's exported tissue mesh (surgsplat export --mesh; "
@@ -184,6 +206,16 @@ def occluded_row(rgb: torch.Tensor, depth: torch.Tensor, frame: Frame,
         if (occluded & (truth_depth > 0)).any():
             row["depth_rmse_occluded"] = depth_rmse(depth, truth_depth, occluded)
     return row
+
+
+def specular_row(pred: torch.Tensor, frame: Frame, scene_root: Path) -> dict[str, float]:
+    """psnr_specular of one frame: the render [H, W, 3] over the tissue pixels the phantom marks
+    as highlight (gt/highlights); empty without the file or such pixels."""
+    path = scene_root / HIGHLIGHTS_DIR / f"{frame_stem(frame.index)}.png"
+    if not path.is_file():
+        return {}
+    highlight = frame.tissue & torch.from_numpy(read_tool_mask(path))  # 255 = marked
+    return {"psnr_specular": psnr_tissue(pred, frame.image, highlight)} if highlight.any() else {}
 
 
 def frame_geometry(depth: torch.Tensor, alpha: torch.Tensor, tissue: torch.Tensor,

@@ -5,8 +5,9 @@ shows is rendered by surgsplat's own CPU renderer at the browser's camera and ca
 sent as the scene background. While the camera moves, frames are rendered at a lower resolution
 (`moving_scale`); once it rests, the full-resolution frame follows. The viewer starts at the
 first training camera; a time slider with play/pause scrubs through the clip, and a channel
-selector shows the colour, depth or normals (and any extra channel the method renders, e.g.
-reflectance, illumination or tool-free colour, when its components add one).
+selector shows the colour, depth or normals, the tool-free colour of a method that separates the
+tool (its tissue-only render), and any extra channel the method renders (e.g. reflectance or
+illumination, when its components add one).
 
 viser's client is bundled with the Python package and served from this machine: the page needs
 no internet access. Camera poses follow viser's convention, P_world = R p_camera + t with OpenCV
@@ -33,7 +34,9 @@ from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.run import TrainedRun
 
 BASE_CHANNELS = ("rgb", "depth", "normal")
-SHOWN_EXTRAS = ("tool_free", "reflectance", "illumination")
+TOOL_FREE = "tool_free"
+"""Channel: the colour of the tissue-only render, for methods that separate the tool."""
+SHOWN_EXTRAS = ("reflectance", "illumination")
 """Render extras of three colour channels the viewer offers when a method renders them."""
 
 
@@ -51,7 +54,8 @@ def view_image(run: TrainedRun, camera: Camera, index: int, channel: str) -> np.
     """uint8 RGB [H, W, 3] of `channel` of `run` at frame `index` seen by `camera`."""
     frame = run.scene.frames[index]
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
-    out = render_frame(run.model, camera, FrameTime(index, frame.time), background)
+    when = FrameTime(index, frame.time, tissue_only=channel == TOOL_FREE)
+    out = render_frame(run.model, camera, when, background)
     if channel == "depth":
         values = out.depth[out.alpha > 0.5]
         near, far = (float(values.quantile(0.01)), float(values.quantile(0.99))) \
@@ -60,7 +64,7 @@ def view_image(run: TrainedRun, camera: Camera, index: int, channel: str) -> np.
     if channel == "normal":
         normals, valid, _ = surface_normals(out, camera.K)
         return colorize_normals(normals.numpy(), valid.numpy())
-    source = out.rgb if channel == "rgb" else out.extras[channel]
+    source = out.rgb if channel in ("rgb", TOOL_FREE) else out.extras[channel]
     return to_uint8(source.clamp(0, 1).numpy())
 
 
@@ -109,7 +113,8 @@ class RunViewer:
     def available_channels(self) -> list[str]:
         frame = self.run.scene.frames[0]
         probe = render_frame(self.run.model, frame.camera, FrameTime(frame.index, frame.time))
-        return [*BASE_CHANNELS, *(name for name in SHOWN_EXTRAS if name in probe.extras)]
+        tool_free = [TOOL_FREE] if self.run.model.separates_tool else []
+        return [*BASE_CHANNELS, *tool_free, *(name for name in SHOWN_EXTRAS if name in probe.extras)]
 
     # ---- cameras ----
     def _connect(self, client) -> None:

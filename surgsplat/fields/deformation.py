@@ -26,6 +26,7 @@ from torch import Tensor
 
 from surgsplat.model.component import Component, FrameTime, SetupContext
 from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.physics import tissue_members
 from surgsplat.model.state import GaussianState
 
 GEOMETRY_CHANNELS = 10
@@ -120,10 +121,49 @@ class DeformationField(Component, ABC):
                              quats=state.quats + delta.d_quats, sh=sh)
 
     def loss_names(self) -> tuple[str, ...]:
-        return self.regularisation_names()
+        return self.regularisation_names() + (("volume",) if self.volume_samples() > 0 else ())
 
     def losses(self, context, active: frozenset[str]) -> dict[str, Tensor]:
-        return {name: value for name, value in self.regularisation().items() if name in active}
+        terms = {name: value for name, value in self.regularisation().items() if name in active}
+        if "volume" in active:
+            terms["volume"] = self.volume_loss(context.gaussians, context.when.time)
+        return terms
+
+    def volume_loss(self, gaussians: GaussianModel, t: float) -> Tensor:
+        """Volume preservation (PhysioSplat Eq. 6): the mean of (det J - 1)^2 over
+        `volume_samples()` random tissue Gaussians (every Gaussian when there is no semantic
+        logit), J = I + d(mean offset)/dx the deformation's spatial Jacobian at the canonical
+        mean, by central differences of step `volume_step()` (scene units)."""
+        params = gaussians.params
+        tissue = tissue_members(params)
+        candidates = (torch.arange(gaussians.num_gaussians) if tissue is None
+                      else tissue.nonzero()[:, 0])
+        if candidates.numel() == 0:
+            return params["means"].sum() * 0.0
+        chosen = candidates[torch.randperm(candidates.numel())[:self.volume_samples()]]
+        return (self.jacobian_determinants(params, chosen, t) - 1.0).square().mean()
+
+    def jacobian_determinants(self, params, rows: Tensor, t: float) -> Tensor:
+        """[S] det(I + d(mean offset)/dx) of the Gaussians `rows` [S] at time t, by central
+        differences of step `volume_step()` along each canonical axis."""
+        means = params["means"][rows].detach()  # [S, 3]
+        attributes = {name: value[rows] for name, value in params.items()}
+        step = self.volume_step()
+        shifts = torch.eye(3, dtype=means.dtype) * step  # [3, 3]
+        probes = torch.cat([means[:, None] + shifts, means[:, None] - shifts], 1)  # [S, 6, 3]
+        repeated = {name: value.repeat_interleave(6, dim=0) for name, value in attributes.items()}
+        offsets = self(probes.reshape(-1, 3), repeated, t).d_means.reshape(-1, 6, 3)
+        columns = (offsets[:, :3] - offsets[:, 3:]) / (2.0 * step)  # [S, axis k, d offset / dx_k]
+        jacobian = torch.eye(3, dtype=means.dtype) + columns.transpose(1, 2)  # [S, 3, 3]
+        return torch.linalg.det(jacobian)
+
+    def volume_samples(self) -> int:
+        """Gaussians per step of the "volume" loss; 0 = the field offers no such loss."""
+        return 0
+
+    def volume_step(self) -> float:
+        """Central-difference step of the volume loss, scene units."""
+        return 1e-3 * float(self.position_scale())
 
     def regularisation_names(self) -> tuple[str, ...]:
         """Names of the regularisers `regularisation()` returns."""

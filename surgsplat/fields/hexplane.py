@@ -64,6 +64,11 @@ class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     """Adam learning rate of the MLP."""
     deform_color: bool = False
     """Also deform the SH DC colour."""
+    volume_samples: int = 0
+    """Gaussians sampled per step for the volume-preservation loss "volume" (PhysioSplat Eq. 6);
+    0 = the field offers no such loss."""
+    volume_step_cells: float = 0.5
+    """Central-difference step of that loss, in cells of the finest spatial plane."""
 
     def resolve(self, scene: SceneInfo) -> "HexPlaneConfig":
         """This config for the scene's clip: time resolution at most half the frame count (as
@@ -136,6 +141,15 @@ class HexPlaneField(DeformationField):
 
     def regularisation_names(self) -> tuple[str, ...]:
         return ("plane_tv", "time_smoothness")
+
+    def volume_samples(self) -> int:
+        return self.config.volume_samples
+
+    def volume_step(self) -> float:
+        """volume_step_cells cells of the finest spatial plane along the widest axis."""
+        finest = max(plane.shape[-1] for plane in self.spatial_planes)
+        span = float((self.bounds_hi - self.bounds_lo).max())
+        return self.config.volume_step_cells * span / max(finest - 1, 1)
 
     def per_gaussian_attributes(self, num: int) -> dict[str, Tensor]:
         return {}

@@ -170,10 +170,18 @@ def read_config_file(path: Path) -> dict:
     return values
 
 
-def method_from_values(values: dict, preset: MethodConfig, where: str) -> MethodConfig:
-    """`preset` with `values` applied; `values` may not change the method's name."""
+def method_from_values(values: dict, preset: MethodConfig, where: str,
+                       complete: bool = False) -> MethodConfig:
+    """`preset` with `values` applied; `values` may not change the method's name. `complete`:
+    `values` is a whole saved config, so a component or loss weight of the preset that it does
+    not list was removed from the run and is dropped here too."""
     values = dict(values)
     name = values.pop("name", preset.name)
     if name != preset.name:
         raise SurgsplatError(f"{where}: names method {name!r}, but the preset is {preset.name!r}")
+    if complete:
+        kept = {key: {name: entry for name, entry in getattr(preset, key).items()
+                      if name in values[key]}
+                for key in ("components", "losses") if isinstance(values.get(key), dict)}
+        preset = dataclasses.replace(preset, **kept)
     return apply_values(preset, values, where)

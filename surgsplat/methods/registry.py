@@ -13,6 +13,7 @@ from surgsplat.errors import SurgsplatError
 from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.fields.sdf import SDFConfig
 from surgsplat.fields.hexplane import HexPlaneConfig
+from surgsplat.losses.biomechanics import BiomechanicsConfig
 from surgsplat.losses.depth import DepthLossConfig
 from surgsplat.losses.photometric import PhotometricConfig
 from surgsplat.methods.config import MethodConfig
@@ -22,6 +23,8 @@ from surgsplat.model.gaussians import GaussianConfig
 from surgsplat.model.init_points import InitConfig
 from surgsplat.model.lumistate import LumiStateConfig
 from surgsplat.model.planar import PlanarConfig
+from surgsplat.model.specular import SpecularConfig
+from surgsplat.model.tool_field import ToolFieldConfig
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,23 @@ def lumistate() -> MethodConfig:
         init=InitConfig(fusion="mapf"))
 
 
+def physiosplat() -> MethodConfig:
+    """Weights of Eq. 3 and 8: lambda_mask 0.1; lambda_biomech 0.01 times lambda_strain 0.1,
+    lambda_col 1.0 and lambda_vol 0.05."""
+    return MethodConfig(
+        name="physiosplat",
+        components={"deformation": HexPlaneConfig(volume_samples=512), "tool": ToolFieldConfig(),
+                    "exposure": ExposureConfig(), "specular": SpecularConfig(),
+                    "biomechanics": BiomechanicsConfig(), "photometric": PhotometricConfig(),
+                    "depth": DepthLossConfig()},
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05),
+                "plane_tv": LossWeight(1e-4), "time_smoothness": LossWeight(1e-3),
+                "mask": LossWeight(0.1), "strain": LossWeight(1e-3),
+                "collision": LossWeight(1e-2), "volume": LossWeight(5e-4)},
+        gaussians=GaussianConfig(sh_degree=0),
+        init=InitConfig(fusion="mapf"))
+
+
 PRESETS: dict[str, Preset] = {
     "deform3dgs": Preset("Deform3DGS baseline: per-Gaussian Gaussian-basis deformation, "
                          "motion-aware point fusion, L1 + D-SSIM and depth L1", deform3dgs),
@@ -117,6 +137,9 @@ PRESETS: dict[str, Preset] = {
     "lumistate": Preset("LumiState: reflectance x illumination (UNet on max(R,G,B), per-Gaussian "
                         "SH modulation from its embedding, Retinex and bright-channel losses "
                         "in Stage 2), Gaussian-basis deformation", lumistate),
+    "physiosplat": Preset("PhysioSplat: tool Gaussians with per-frame rigid motion and semantic "
+                          "logits beside HexPlane tissue, tool-free rendering, ARAP strain, tool "
+                          "collision and volume losses, co-located specular lobe", physiosplat),
 }
 
 

@@ -42,6 +42,9 @@ class TrainConfig:
     kill -9 loses at most about this much training."""
     seed: int = 0
     """Seed of frame sampling and of densification."""
+    tool_mask_offset_px: int = 0
+    """Grow (> 0) or shrink (< 0) the training frames' tool masks by this many pixels before
+    training: a mask-robustness test (PhysioSplat's +-10 px); eval scores with the true masks."""
 
 
 @dataclass

@@ -13,6 +13,13 @@ same way and never name one. A component declares:
   rendered maps (`finish_render`: e.g. an unbiased depth, an exposure gain);
 - its named loss terms (`loss_names`, `losses`), computed from a `RenderContext`; their weights
   come from the method config (`MethodConfig.losses`), never from the component;
+- Gaussians of its own beyond the scene's initial points (`initial_points`, e.g. a tool's from
+  the tool pixels' depth), which get the same per-Gaussian attributes as the others;
+- whether it can leave the tool out of a render (`separates_tool`): a `FrameTime` asks for a
+  tissue-only render with `tissue_only=True`, and such a component then drops the Gaussians it
+  models as tool (eval scores the hidden tissue on that render; `surgsplat render --tool-free`);
+- diagnostics of the Gaussians at a test frame for metrics.json (`frame_diagnostics`, e.g. tool
+  collisions or strain);
 - what densification must know of it: a factor on every Gaussian's opacity that does not depend
   on time (`opacity_factor`, e.g. an SDF-derived opacity), so that pruning, cloning and opacity
   resets act on the opacity that is rendered; and a weight on each Gaussian's screen-space
@@ -26,7 +33,7 @@ config can be rebuilt from the file alone, including components defined outside 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
 
 from torch import Tensor, nn
@@ -46,6 +53,7 @@ class FrameTime:
 
     index: int  # frame index in the clip (a held-out frame's own index at test time)
     time: float  # index / number of frames, in [0, 1)
+    tissue_only: bool = False  # render mode: components that separate the tool leave it out
 
 
 @dataclass(frozen=True)
@@ -66,6 +74,27 @@ class SetupContext:
     points: Tensor  # [M, 3] initial Gaussian means (world frame, scene units)
     scene_extent: float  # largest distance of an initial point from their centroid
     frames: Sequence[Frame]  # the training frames (images, depth, tool and FOV masks, cameras)
+    added: dict[int, slice] = field(default_factory=dict)  # id(component) -> its rows of points
+
+    def rows_added_by(self, component: Component) -> slice:
+        """The rows of `points` that `component.initial_points` contributed (empty if none)."""
+        return self.added.get(id(component), slice(0, 0))
+
+
+@dataclass
+class InitialPoints:
+    """Gaussians a component adds to the scene's initial point cloud."""
+
+    means: Tensor  # [K, 3] world frame, scene units
+    colors: Tensor  # [K, 3] RGB in [0, 1]
+
+
+@dataclass
+class Diagnostics:
+    """What a component measures of the Gaussians at one test frame, for metrics.json."""
+
+    summed: dict[str, float] = field(default_factory=dict)  # summed over test frames (counts)
+    averaged: dict[str, float] = field(default_factory=dict)  # averaged over test frames
 
 
 @dataclass
@@ -129,9 +158,18 @@ class ComponentConfig:
 class Component(nn.Module):
     """One piece of a method; see the module docstring. Hooks default to contributing nothing."""
 
+    separates_tool: ClassVar[bool] = False
+    """True when `transform` leaves the tool out of renders asked with `when.tissue_only`."""
+
     def setup(self, context: SetupContext) -> None:
         """Called once on a freshly built component before training (not when a run is loaded:
         whatever it sets must live in parameters or buffers, so the state_dict restores it)."""
+
+    def initial_points(self, context: SetupContext) -> InitialPoints | None:
+        """Gaussians to add to the initial points (after every component's `setup`); the
+        components' `initial_attributes` then see them in `context.points`, at the rows
+        `context.rows_added_by(self)`."""
+        return None
 
     def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
         """Learnable per-Gaussian tensors, name -> [M, ...] for the M initial points."""
@@ -175,4 +213,9 @@ class Component(nn.Module):
     def densify_weights(self, context: RenderContext) -> Tensor | None:
         """[N] non-negative weight of each Gaussian's screen-space gradient in this step's
         densification statistics (0 = this step never makes it grow), or None for 1."""
+        return None
+
+    def frame_diagnostics(self, state: GaussianState, gaussians: GaussianModel,
+                          when: FrameTime) -> Diagnostics | None:
+        """Measurements of the Gaussians `state` at the test frame `when`, or None."""
         return None

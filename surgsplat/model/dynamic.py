@@ -12,7 +12,8 @@ from torch import Tensor, nn
 
 from surgsplat.data.scene import Camera
 from surgsplat.errors import SurgsplatError
-from surgsplat.model.component import Component, FrameTime, ParamGroup, RenderContext
+from surgsplat.model.component import (Component, Diagnostics, FrameTime, ParamGroup,
+                                       RenderContext)
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.state import GaussianState
 from surgsplat.render.render import RenderOutput, render
@@ -61,6 +62,23 @@ class SplatModel(nn.Module):
         for component in self.components.values():
             component.finish_render(output, camera, when)
         return output, state
+
+    @property
+    def separates_tool(self) -> bool:
+        """True when a component can leave the tool out (renders with `when.tissue_only`)."""
+        return any(component.separates_tool for component in self.components.values())
+
+    @torch.no_grad()
+    def diagnostics(self, when: FrameTime) -> Diagnostics:
+        """Every component's measurements of the Gaussians at `when`, merged."""
+        state = self.state_at(when)
+        merged = Diagnostics()
+        for component in self.components.values():
+            found = component.frame_diagnostics(state, self.gaussians, when)
+            if found is not None:
+                merged.summed.update(found.summed)
+                merged.averaged.update(found.averaged)
+        return merged
 
     # ---- what training needs ----
     def loss_terms(self) -> dict[str, str]:

@@ -73,7 +73,7 @@ def read_run_config(run_dir: Path) -> MethodConfig:
         raise DataError(path, f"is not valid JSON ({err})") from err
     if not isinstance(saved, dict) or "name" not in saved:
         raise DataError(path, "expected a saved method configuration with a 'name'")
-    return method_from_values(saved, method_config(saved["name"]), where=str(path))
+    return method_from_values(saved, method_config(saved["name"]), where=str(path), complete=True)
 
 
 def read_run_scene(run_dir: Path, data_dir: Path | None = None) -> Scene:

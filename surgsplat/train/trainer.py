@@ -23,6 +23,7 @@ from torch import Tensor
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.data.scene import Frame, Scene
+from surgsplat.data.tool_masks import offset_tool_masks
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig, to_dict
 from surgsplat.methods.settings import LossWeight
@@ -92,6 +93,23 @@ def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str])
                              f"this term but the method gives it no weight")
 
 
+def add_component_points(context: SetupContext, colors: Tensor,
+                         components) -> tuple[Tensor, Tensor]:
+    """Append every component's `initial_points` to `context.points` (recording each one's rows
+    in `context.added`); returns the means [M', 3] and colours [M', 3] of all initial points."""
+    means = context.points
+    for component in components:
+        extra = component.initial_points(context)
+        if extra is None or extra.means.shape[0] == 0:
+            continue
+        start = means.shape[0]
+        means = torch.cat([means, extra.means.to(means)])
+        colors = torch.cat([colors, extra.colors.to(colors)])
+        context.added[id(component)] = slice(start, means.shape[0])
+        context.points = means
+    return means, colors
+
+
 def trim_log(path: Path, iteration: int) -> None:
     """Cut the training log back to its entries up to `iteration` (an atomic rewrite), so that
     after a kill, a stop or a resume it holds each iteration at most once, in increasing order,
@@ -117,6 +135,7 @@ class Trainer:
     def __init__(self, config: MethodConfig, scene: Scene, run_dir: Path):
         info = scene_info(scene)
         self.config = config.resolved(info)
+        scene = offset_tool_masks(scene, self.config.train.tool_mask_offset_px)
         self.scene = scene
         self.run_dir = Path(run_dir)
         self.iteration = 0
@@ -129,16 +148,17 @@ class Trainer:
         components = build_components(self.config)
         context = SetupContext(scene=info, points=points.means, scene_extent=self.scene_extent,
                                frames=scene.train_frames)
+        for component in components.values():
+            component.setup(context)
+        means, colors = add_component_points(context, points.colors, components.values())
         attributes: dict[str, Tensor] = {}
         for name, component in components.items():
-            component.setup(context)
             for key, value in component.initial_attributes(context).items():
                 if key in attributes:
                     raise SurgsplatError(f"component {name!r} declares the per-Gaussian "
                                          f"attribute {key!r}, which another component owns")
                 attributes[key] = value
-        gaussians = GaussianModel.from_points(points.means, points.colors, self.config.gaussians,
-                                              attributes)
+        gaussians = GaussianModel.from_points(means, colors, self.config.gaussians, attributes)
         self.model = SplatModel(gaussians, components)
         check_loss_weights(self.config.losses, self.model.loss_terms())
         self.optimizer, self.schedules = self._build_optimizer()

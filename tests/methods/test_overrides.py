@@ -98,3 +98,18 @@ def test_config_files_json_and_toml(tmp_path):
         read_config_file(tmp_path / "c.yaml")
     with pytest.raises(DataError, match="config file not found"):
         read_config_file(tmp_path / "missing.json")
+
+
+def test_a_saved_config_without_a_component_loads_without_it():
+    """A run trained with a component removed (--set components.X=null) is rebuilt from its
+    saved config.json without it; partial values (--config) still merge into the preset."""
+    changed = apply_values(method_config("physiosplat"),
+                           parse_assignment("components.specular=null"))
+    changed = apply_values(changed, parse_assignment("losses.strain=null"))
+    saved = json.loads(json.dumps(to_dict(changed)))
+    loaded = method_from_values(saved, method_config("physiosplat"), "config.json", complete=True)
+    assert "specular" not in loaded.components and "strain" not in loaded.losses
+    assert to_dict(loaded) == to_dict(changed)
+    partial = method_from_values({"losses": {"mask": {"weight": 0.5}}},
+                                 method_config("physiosplat"), "extra.toml")
+    assert "specular" in partial.components and partial.losses["mask"].weight == 0.5

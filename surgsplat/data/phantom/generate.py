@@ -10,6 +10,8 @@ poses_bounds.npy (each frame's endoscope pose) and scene.json, the folder holds 
     gt/albedo/{stem}.png         tissue albedo
     gt/normals/{stem}.npy        float32 [H, W, 3] unit tissue normals in frame i's camera space
     gt/meshes/{stem}.ply         the tissue surface at time i / N, world frame, mm (binary PLY)
+    gt/highlights/{stem}.png     255 where the tissue's specular highlight adds more than
+                                 HIGHLIGHT_THRESHOLD to the image (before clipping), else 0
     gt/exposure.json             list of the per-frame exposure factors
     gt/shading/{stem}.npy        float32 [H, W] true tissue shading (with --lighting livar or
                                  hivar): tissue_images = albedo * shading + specular, clipped
@@ -36,8 +38,8 @@ from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem
 from surgsplat.data.phantom.camera_path import CAMERAS
 from surgsplat.data.phantom.mesh import grid_mesh
 from surgsplat.data.phantom.motion import MOTIONS
-from surgsplat.data.phantom.scene import PhantomScene
-from surgsplat.data.phantom.shading import LIGHTINGS, METAL, WET_TISSUE
+from surgsplat.data.phantom.scene import PhantomFrame, PhantomScene
+from surgsplat.data.phantom.shading import LIGHTINGS, METAL, WET_TISSUE, shade
 from surgsplat.data.ply import write_ply_mesh
 from surgsplat.errors import SurgsplatError
 
@@ -47,6 +49,9 @@ TISSUE_DEPTH_DIR = f"{GT_DIR}/tissue_depth"
 ALBEDO_DIR = f"{GT_DIR}/albedo"
 NORMALS_DIR = f"{GT_DIR}/normals"
 MESHES_DIR = f"{GT_DIR}/meshes"
+HIGHLIGHTS_DIR = f"{GT_DIR}/highlights"
+HIGHLIGHT_THRESHOLD = 0.1
+"""Specular radiance (image units, 1 = white) above which a tissue pixel is a highlight."""
 EXPOSURE_FILE = f"{GT_DIR}/exposure.json"
 SHADING_DIR = f"{GT_DIR}/shading"
 LIGHT_INTENSITY_FILE = f"{GT_DIR}/light_intensity.json"
@@ -153,7 +158,8 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
                                              f"seed {config.seed}",
                      extra=_extra(config, preset, num_frames, scene))
     writer = SceneWriter(out_dir, focal=preset.focal, meta=meta)
-    for sub in (TISSUE_IMAGES_DIR, TISSUE_DEPTH_DIR, ALBEDO_DIR, NORMALS_DIR, MESHES_DIR):
+    for sub in (TISSUE_IMAGES_DIR, TISSUE_DEPTH_DIR, ALBEDO_DIR, NORMALS_DIR, MESHES_DIR,
+                HIGHLIGHTS_DIR):
         (out_dir / sub).mkdir(parents=True, exist_ok=True)
     writes_shading = scene.lighting.writes_shading
     if writes_shading:
@@ -169,6 +175,7 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
         np.save(out_dir / NORMALS_DIR / f"{stem}.npy", frame.normals)
         if writes_shading:
             np.save(out_dir / SHADING_DIR / f"{stem}.npy", frame.shading)
+        cv2.imwrite(str(out_dir / HIGHLIGHTS_DIR / f"{stem}.png"), _highlights(scene, frame))
         vertices, faces, colors = grid_mesh(frame.tissue_depth, scene.xn, scene.yn,
                                             preset.mesh_step, frame.albedo)  # camera space
         camera_to_world = scene.camera_path.camera_to_world(scene.time(index))
@@ -184,6 +191,16 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
         (out_dir / LIGHT_INTENSITY_FILE).write_text(json.dumps(intensities) + "\n")
     np.save(out_dir / CAMERA_POSES_FILE, np.stack(poses))
     writer.finish()
+
+
+def _highlights(scene: PhantomScene, frame: PhantomFrame) -> np.ndarray:
+    """uint8 [H, W]: 255 where the tissue's specular term alone (zero albedo) exceeds
+    HIGHLIGHT_THRESHOLD."""
+    depth = frame.tissue_depth.astype(np.float64)
+    points = np.stack([depth * scene.xn, depth * scene.yn, depth], axis=-1)
+    specular = shade(points, frame.normals.astype(np.float64), np.zeros_like(points), WET_TISSUE,
+                     scene.light, frame.exposure)[..., 0]
+    return np.where(specular > HIGHLIGHT_THRESHOLD, 255, 0).astype(np.uint8)
 
 
 def _write_rgb(path: Path, image: np.ndarray) -> None:
@@ -205,6 +222,7 @@ def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
         "tool": asdict(scene.geometry), "trocar_mm": scene.trocar.tolist(),
         "gt": {"tissue_images": TISSUE_IMAGES_DIR, "tissue_depth": TISSUE_DEPTH_DIR,
                "albedo": ALBEDO_DIR, "normals": NORMALS_DIR, "meshes": MESHES_DIR,
+               "highlights": HIGHLIGHTS_DIR,
                "exposure": EXPOSURE_FILE, "camera_poses": CAMERA_POSES_FILE,
                "depth_unit": "mm", "frames": "depth and normals: per-frame camera space; "
                                              "meshes: world frame (= frame 0's camera)"},
