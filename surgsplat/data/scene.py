@@ -141,6 +141,12 @@ class Frame:
     def tissue(self) -> Tensor:  # [H, W] bool, True = tissue = fov & ~tool
         return self.pixels.tissue
 
+    def with_tool(self, tool: Tensor) -> "Frame":
+        """This frame with its tool mask ([H, W] bool) replaced; the new frame holds its
+        pixels."""
+        return Frame(self.index, self.time, self.image, self.depth, self.is_test, self.camera,
+                     tool, self.fov)
+
     def prefetch(self) -> None:
         """Say that this frame is needed soon: its files start decoding in the background
         (nothing to do for a frame whose pixels are held or cached)."""

@@ -110,6 +110,6 @@ def offset_tool_masks(scene: Scene, pixels: int) -> Scene:
     for frame in scene.frames:
         if not frame.is_test:
             tool = change(frame.tool.numpy().astype(np.uint8), kernel)
-            frame = dataclasses.replace(frame, tool=torch.from_numpy(tool.astype(bool)))
+            frame = frame.with_tool(torch.from_numpy(tool.astype(bool)))
         frames.append(frame)
     return dataclasses.replace(scene, frames=frames)

@@ -73,7 +73,8 @@ class SDFConfig(ComponentConfig, kind="sdf"):
     samples_per_step: int = 2048
     """Gaussians drawn per step for the Eikonal, projection, orientation and SDA losses."""
     box_margin: float = 0.15
-    """Margin added on every side of the initial points' bounding box, as a fraction of its size."""
+    """Margin added on every side of the initial points' bounding box, as a fraction of its size
+    (at least `fit_band` of the extent)."""
     gradient_step: float = 0.5
     """Finite-difference step, in cells of the finest grid."""
     fit_steps: int = 200
@@ -145,7 +146,9 @@ class SDFField(Component):
     def setup(self, context: SetupContext) -> None:
         points = context.points
         lo, hi = points.min(dim=0).values, points.max(dim=0).values
-        margin = (hi - lo).clamp_min(1e-3 * context.scene_extent) * self.config.box_margin
+        # at least the fit's band, so that the samples of `_fit` lie inside the grids
+        margin = ((hi - lo) * self.config.box_margin).clamp_min(
+            self.config.fit_band * context.scene_extent)
         self.box.copy_(torch.stack([lo - margin, hi + margin]))
         self.initial_beta.fill_(1.0 / (self.config.bell_width * context.scene_extent))
         self._fit(points, context)
