@@ -29,6 +29,10 @@ iteration LUMISTATE_STAGE2_ITER, a third of the --iters 400 the suite is run wit
 deform3dgs's (the naive baseline: its rendered colour scored as reflectance); livar: no PSNR
 loss over 0.3 dB; training time <= 1.5 x deform3dgs.
 
+Suite `drawer` (issue 16): deform3dgs, endogsg and drawer (endogsg's components with Gaussians
+anchored on the SDF's mesh, plus PhysioSplat's tool field); the mesh export of every frame is
+timed for drawer. Targets: drawer psnr_tissue within 1 dB of endogsg, mesh P2S median <= 0.5 mm.
+
 Suite `physiosplat` (issue 14): deform3dgs; endogaussian, which is PhysioSplat's Table 2 row (a)
 (the monolithic HexPlane 4DGS baseline); rows (b) +tool/tissue decomposition, (c) +biomechanics
 and (d) +specular (the full `physiosplat` preset); and the full preset trained with tool masks
@@ -128,6 +132,17 @@ SUITES = {
                  "mesh_largest_hole_cells", "mesh_export_seconds", "psnr_tissue",
                  "psnr_occluded", "depth_rmse_mm"),
         baseline="deform3dgs", ratio_metrics=("gaussians_p2s_mean_mm",)),
+    "drawer": Suite(
+        cases=(
+            Case("deform3dgs", "deform3dgs", "pulling"),
+            Case("endogsg", "endogsg", "pulling"),
+            Case("drawer", "drawer", "pulling", export_mesh=True),
+        ),
+        metrics=("psnr_tissue", "psnr_tissue_gain", "psnr_occluded", "gaussians_p2s_mean_mm",
+                 "gaussians_p2s_median_mm",
+                 "gaussians_p2s_p95_mm", "mesh_p2s_median_mm", "mesh_coverage",
+                 "mesh_export_seconds", "depth_rmse_mm"),
+        baseline="endogsg"),
     "lumistate": Suite(
         cases=(
             Case("deform3dgs-livar", "deform3dgs", "livar"),

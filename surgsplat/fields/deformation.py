@@ -111,8 +111,10 @@ class DeformationField(Component, ABC):
 
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
-        """Offsets from the canonical means and the field's attributes, added to `state`."""
-        delta = self(gaussians.params["means"], dict(gaussians.params), when.time)
+        """Offsets evaluated at the centres of `state` (the canonical means, or where a
+        component before this one put them, e.g. anchored on a mesh) with the field's
+        attributes, added to `state`."""
+        delta = self(state.means, dict(gaussians.params), when.time)
         sh = state.sh
         if delta.d_colors is not None:
             sh = torch.cat([sh[:, :1] + delta.d_colors[:, None], sh[:, 1:]], dim=1)

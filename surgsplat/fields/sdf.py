@@ -16,11 +16,12 @@ loss holds. Gradients of f are taken by tetrahedral finite differences (as Neura
 which needs no double backward through the grid lookup.
 
 The coupling, as the component contract expresses it:
-- opacity: every Gaussian's opacity is multiplied by the bell Phi_beta(f(mu)) = 4 s (1 - s),
+- opacity: every tissue Gaussian's opacity (all of them, unless a tool field marks some as tool,
+  `model.physics.tissue_members`) is multiplied by the bell Phi_beta(f(mu)) = 4 s (1 - s),
   s = sigmoid(beta f(mu)) (Eq. 4; beta learnable), also given to densification as
   `opacity_factor`, so pruning, cloning and resets act on the rendered opacity;
-- losses on a random subset of Gaussians per step: "eikonal" (Eq. 13), "projection" (Eq. 7-8),
-  "orientation" (Eq. 9-10: the shortest axis along the SDF normal) and "sda" (Eq. 6: the
+- losses on a random subset of tissue Gaussians per step: "eikonal" (Eq. 13), "projection"
+  (Eq. 7-8), "orientation" (Eq. 9-10: the shortest axis along the SDF normal) and "sda" (Eq. 6: the
   normalised SDF vector against the normalised signed depth differences of the deformed centres
   to the frame's measured depth). The depth loss of Eq. 5 is the method's depth component, whose
   rendered depth the SDF opacity shapes.
@@ -43,6 +44,7 @@ from surgsplat.image.pinhole import inside_image, project_points
 from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
                                        RenderContext, SetupContext)
 from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.physics import tissue_members
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import quaternion_to_matrix
 
@@ -182,23 +184,31 @@ class SDFField(Component):
             groups.append(ParamGroup("sdf_beta", [self.log_beta], self.config.beta_lr))
         return groups
 
+    def tissue_bell(self, gaussians: GaussianModel) -> Tensor:
+        """[N] the bell of f at the canonical centres; 1 for Gaussians that a tool field of the
+        method models as tool (the field describes the tissue surface)."""
+        factor = self.bell(self.signed_distance(gaussians.params["means"]))
+        tissue = tissue_members(gaussians.params)
+        return factor if tissue is None else torch.where(tissue, factor, 1.0)
+
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
         """Opacities times the bell of f at the canonical centres (Eq. 4)."""
-        factor = self.bell(self.signed_distance(gaussians.params["means"]))
-        return state.replace(opacities=state.opacities * factor)
+        return state.replace(opacities=state.opacities * self.tissue_bell(gaussians))
 
     @torch.no_grad()
     def opacity_factor(self, gaussians: GaussianModel) -> Tensor:
-        return self.bell(self.signed_distance(gaussians.params["means"]))
+        return self.tissue_bell(gaussians)
 
     def loss_names(self) -> tuple[str, ...]:
         return ("eikonal", "projection", "orientation", "sda")
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         params = context.gaussians.params
-        count = params["means"].shape[0]
-        pick = torch.randperm(count)[:self.config.samples_per_step]
+        tissue = tissue_members(params)
+        rows = (torch.arange(params["means"].shape[0]) if tissue is None
+                else tissue.nonzero()[:, 0])
+        pick = rows[torch.randperm(rows.numel())[:self.config.samples_per_step]]
         means = params["means"][pick]  # [K, 3] canonical
         value, gradient = self.value_and_gradient(means)
         normal = nn.functional.normalize(gradient, dim=1).detach()  # [K, 3]

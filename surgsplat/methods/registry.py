@@ -22,6 +22,7 @@ from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig
 from surgsplat.model.init_points import InitConfig
 from surgsplat.model.lumistate import LumiStateConfig
+from surgsplat.model.mesh_anchor import MeshAnchorConfig
 from surgsplat.model.planar import PlanarConfig
 from surgsplat.model.specular import SpecularConfig
 from surgsplat.model.tool_field import ToolFieldConfig
@@ -88,6 +89,20 @@ def endogsg() -> MethodConfig:
         init=InitConfig(fusion="mapf"))
 
 
+def drawer() -> MethodConfig:
+    """Endo-GSG's components and weights with its Gaussians anchored on the SDF's mesh (first,
+    so that the deformation moves the anchored Gaussians) and PhysioSplat's tool field (weight
+    of its mask loss as in `physiosplat`), whose tool Gaussians are neither anchored nor faded
+    by the SDF."""
+    method = endogsg()
+    method.name = "drawer"
+    deformation = method.components.pop("deformation")
+    method.components = {"anchor": MeshAnchorConfig(), "deformation": deformation,
+                         "tool": ToolFieldConfig(), **method.components}
+    method.losses["mask"] = LossWeight(0.1)
+    return method
+
+
 LUMISTATE_STAGE2_ITER = 1000
 """Iteration at which LumiState's Stage 2 (Retinex and bright-channel losses) starts: a third of
 the default 3000, once geometry and reflectance have settled under the photometric loss."""
@@ -134,6 +149,10 @@ PRESETS: dict[str, Preset] = {
     "endogsg": Preset("Endo-GSG: HexPlane deformation, canonical neural SDF giving each Gaussian "
                       "its opacity, SDA / projection / orientation / Eikonal losses, occlusion "
                       "importance map", endogsg),
+    "drawer": Preset("DRAWER: Endo-GSG with Gaussians anchored on the faces of the SDF's "
+                     "marching-cubes mesh (clipped face-local offset, scale and tilt with "
+                     "straight-through gradients, re-anchored every 100 steps) and PhysioSplat's "
+                     "tool field", drawer),
     "lumistate": Preset("LumiState: reflectance x illumination (UNet on max(R,G,B), per-Gaussian "
                         "SH modulation from its embedding, Retinex and bright-channel losses "
                         "in Stage 2), Gaussian-basis deformation", lumistate),

@@ -20,6 +20,10 @@ same way and never name one. A component declares:
   models as tool (eval scores the hidden tissue on that render; `surgsplat render --tool-free`);
 - diagnostics of the Gaussians at a test frame for metrics.json (`frame_diagnostics`, e.g. tool
   collisions or strain);
+- the other components of its method, when it builds on one of them (`bind`, e.g. Gaussians
+  anchored on the mesh of the method's signed distance field);
+- work between training steps (`after_step`, e.g. re-extracting a mesh every K iterations), after
+  the optimiser step and densification, when every Gaussian of the next step exists;
 - what densification must know of it: a factor on every Gaussian's opacity that does not depend
   on time (`opacity_factor`, e.g. an SDF-derived opacity), so that pruning, cloning and opacity
   resets act on the opacity that is rendered; and a weight on each Gaussian's screen-space
@@ -32,7 +36,7 @@ config can be rebuilt from the file alone, including components defined outside 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
 
@@ -160,6 +164,16 @@ class Component(nn.Module):
 
     separates_tool: ClassVar[bool] = False
     """True when `transform` leaves the tool out of renders asked with `when.tissue_only`."""
+
+    def bind(self, components: Mapping[str, Component]) -> None:
+        """Called once with every component of the method (this one included), whenever the
+        model is built (trained or loaded), before any other hook but `setup` and the initial
+        points and attributes. Keep what is needed as a plain reference (not as a submodule:
+        each component's state is saved once, under its own name)."""
+
+    def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
+        """Called without gradients after every training step (`iteration`, from 1), once the
+        optimiser has stepped and densification has run."""
 
     def setup(self, context: SetupContext) -> None:
         """Called once on a freshly built component before training (not when a run is loaded:

@@ -26,6 +26,8 @@ class SplatModel(nn.Module):
         super().__init__()
         self.gaussians = gaussians
         self.components = nn.ModuleDict(components)
+        for component in self.components.values():
+            component.bind(self.components)
 
     # ---- the Gaussians at a moment ----
     def canonical_state(self) -> GaussianState:
@@ -112,6 +114,12 @@ class SplatModel(nn.Module):
         """[N] product of the components' densification weights for this step, or None."""
         return _product(component.densify_weights(context)
                         for component in self.components.values())
+
+    @torch.no_grad()
+    def after_step(self, iteration: int) -> None:
+        """Every component's work after training step `iteration`."""
+        for component in self.components.values():
+            component.after_step(self.gaussians, iteration)
 
     def attribute_lrs(self) -> dict[str, float]:
         """Learning rates of the components' per-Gaussian attributes, by attribute name."""

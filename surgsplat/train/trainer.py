@@ -240,6 +240,7 @@ class Trainer:
         self.strategy.step_post_backward(self.iteration, self.model.gaussians, self.optimizer,
                                          screen_grad, output.projection.radii.detach(),
                                          self.model.opacity_factor)
+        self.model.after_step(self.iteration)
         self.elapsed += time.perf_counter() - started
         with torch.no_grad():
             mse = float(((output.rgb - frame.image)[frame.tissue] ** 2).mean())

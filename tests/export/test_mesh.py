@@ -7,8 +7,9 @@ import pytest
 import torch
 
 from surgsplat.data.scene import Camera, Frame, load_scene
-from surgsplat.export.mesh import (MeshExtractor, MeshOptions, anchor_weights, coverage, depth_mesh,
-                                   marching_cubes)
+from surgsplat.export.mesh import (MeshExtractor, MeshOptions, anchor_weights, coverage,
+                                   depth_mesh)
+from surgsplat.fields.level_set import marching_cubes
 from surgsplat.methods.registry import method_config
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.train.trainer import Trainer

@@ -1,0 +1,280 @@
+"""Gaussians anchored on the faces of the mesh of the method's signed distance field (DRAWER,
+`drawer-supplement.txt` Section B.2).
+
+The mesh is the zero level set of the method's SDF component (`fields.level_set.marching_cubes`),
+extracted at the first training step and again after every `reanchor_every` steps. Each Gaussian
+is mapped to a face k (per-Gaussian attribute `anchor_face`, carried by densification like any
+attribute: a clone or split child keeps its parent's face): the nearest face (among the
+`candidate_faces` faces of nearest centroid) to its canonical centre when it is anchored.
+
+Face frame (the supplement's): e0 = (v1 - v0) / |.|, e1 = (v2 - v1) / |.|, n = e0 x e1 / |.|;
+x_k = e0, y_k = n x e0, z_k = n, with origin v0. A Gaussian's learnable canonical mean, scales
+and rotation are its parameters before the clip; the anchored Gaussian that is rendered is
+- mean: the centre in face coordinates (x, y, z) = F_k^T (mu - v0); the in-plane point's
+  barycentric coordinates clipped to [0, 1] and renormalised to sum 1 (so it lies in the
+  triangle), z clipped to [-e_alpha r_k, e_alpha r_k], back to world: v0 + F_k (x', y', z');
+- scales: the two first axes clipped to s_alpha r_k, the third (the Gaussian's normal axis) to
+  s_alpha s_beta r_k;
+- rotation: the third axis tilted at most phi_max from the face normal (either orientation: a
+  Gaussian is symmetric), by the smallest rotation that brings it within the cone; the rotation
+  about the normal is free;
+where r_k is the face's inradius, at least `min_face_radius` marching-cubes cells (slivers of
+marching cubes would otherwise pin their Gaussians to zero size). Every clip is straight-through:
+the forward pass uses the clipped value, the backward pass the identity (sg(clip(p)) + p - sg(p)),
+so the photometric gradient keeps moving the parameters, whose drift off the surface the SDF's
+projection loss pulls back, and the surface along with them.
+
+How the Gaussians follow the deforming surface: this component comes first in the method, so it
+turns the canonical Gaussians into anchored canonical Gaussians; the deformation field then moves
+the anchored centres (evaluated there, `fields.deformation`), so over time each Gaussian moves with
+the tissue around its face. The mesh itself is canonical; the mesh export carries its vertices to
+a frame by the displacement of the nearby Gaussians (`export.mesh`), i.e. by the same field.
+
+Gaussians that a tool field marks as tool (`model.physics.tissue_members`) are left as they are.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+from surgsplat.errors import SurgsplatError
+from surgsplat.fields.level_set import marching_cubes
+from surgsplat.model.component import Component, ComponentConfig, FrameTime, SetupContext
+from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.physics import tissue_members
+from surgsplat.model.state import GaussianState
+from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
+                                       quaternion_to_matrix)
+
+ANCHOR_KEY = "anchor_face"
+"""Per-Gaussian attribute [N]: index of the face the Gaussian is anchored to (a float holding an
+integer; -1 = not anchored yet, anchored at the next render)."""
+
+
+@dataclass
+class MeshAnchorConfig(ComponentConfig, kind="mesh_anchor"):
+    """The mesh extraction, its schedule and the clipping band of anchored Gaussians."""
+
+    resolution: int = 128
+    """Marching-cubes cells along the longest side of the SDF's box."""
+    reanchor_every: int = 100
+    """Re-extract the mesh and re-anchor every Gaussian after every this many training steps."""
+    offset_band: float = 2.0
+    """e_alpha: the normal offset is clipped to +- this many face radii."""
+    scale_limit: float = 4.0
+    """s_alpha: the two in-face scales are clipped to this many face radii."""
+    normal_scale_ratio: float = 0.25
+    """s_beta: the third (normal) scale is clipped to s_alpha s_beta face radii."""
+    max_tilt_deg: float = 30.0
+    """phi_max: largest angle between a Gaussian's third axis and its face's normal, degrees."""
+    min_face_radius: float = 0.25
+    """Face radius used for the clips: the inradius, at least this many marching-cubes cells."""
+    candidate_faces: int = 8
+    """Faces of nearest centroid among which a Gaussian's nearest face is looked for."""
+
+    def build(self) -> "MeshAnchor":
+        return MeshAnchor(self)
+
+
+def face_frames(corners: Tensor) -> Tensor:
+    """corners [..., 3, 3] (v0, v1, v2 as rows) -> [..., 3, 3] orthonormal frames whose columns are
+    x_k = e0, y_k = n x e0 and z_k = n (the face normal, by the corners' winding)."""
+    v0, v1, v2 = corners.unbind(-2)
+    e0 = F.normalize(v1 - v0, dim=-1)
+    e1 = F.normalize(v2 - v1, dim=-1)
+    normal = F.normalize(torch.cross(e0, e1, dim=-1), dim=-1)
+    return torch.stack([e0, torch.cross(normal, e0, dim=-1), normal], dim=-1)
+
+
+def to_face_local(points: Tensor, corners: Tensor) -> Tensor:
+    """World points [..., 3] -> their coordinates (x, y, z) [..., 3] in the frames of faces
+    corners [..., 3, 3] (origin v0)."""
+    frame = face_frames(corners)
+    return ((points - corners[..., 0, :]).unsqueeze(-2) @ frame).squeeze(-2)
+
+
+def from_face_local(local: Tensor, corners: Tensor) -> Tensor:
+    """Face coordinates [..., 3] in the frames of faces corners [..., 3, 3] -> world points."""
+    return corners[..., 0, :] + (face_frames(corners) @ local.unsqueeze(-1)).squeeze(-1)
+
+
+def planar_corners(corners: Tensor) -> tuple[Tensor, Tensor]:
+    """The corners v1, v2 in 2D face coordinates, [..., 2] each (v0 is the origin)."""
+    local = to_face_local(corners, corners.unsqueeze(-3).expand(*corners.shape[:-1], 3, 3))
+    return local[..., 1, :2], local[..., 2, :2]
+
+
+def inradius(corners: Tensor) -> Tensor:
+    """[...] inradius of faces corners [..., 3, 3]: twice the area over the perimeter."""
+    v0, v1, v2 = corners.unbind(-2)
+    double_area = torch.cross(v1 - v0, v2 - v0, dim=-1).norm(dim=-1)
+    perimeter = (v1 - v0).norm(dim=-1) + (v2 - v1).norm(dim=-1) + (v0 - v2).norm(dim=-1)
+    return double_area / perimeter.clamp_min(1e-30)
+
+
+def clip_to_face(local: Tensor, corners: Tensor, band: Tensor) -> Tensor:
+    """Face coordinates [..., 3] clipped into face corners [..., 3, 3]: the in-plane point's
+    barycentric coordinates clipped to [0, 1] and renormalised, z clipped to [-band, band]
+    (band [...])."""
+    p1, p2 = planar_corners(corners)
+    point = local[..., :2]
+    double_area = p1[..., 0] * p2[..., 1] - p1[..., 1] * p2[..., 0]
+    lambda1 = (point[..., 0] * p2[..., 1] - point[..., 1] * p2[..., 0]) / double_area
+    lambda2 = (p1[..., 0] * point[..., 1] - p1[..., 1] * point[..., 0]) / double_area
+    weights = torch.stack([1.0 - lambda1 - lambda2, lambda1, lambda2], dim=-1).clamp(0.0, 1.0)
+    weights = weights / weights.sum(dim=-1, keepdim=True)
+    planar = weights[..., 1:2] * p1 + weights[..., 2:3] * p2
+    offset = torch.maximum(torch.minimum(local[..., 2], band), -band)
+    return torch.cat([planar, offset.unsqueeze(-1)], dim=-1)
+
+
+def clip_tilt(quats: Tensor, normals: Tensor, max_tilt: float) -> Tensor:
+    """Rotations quats [N, 4] whose third axis is turned, by the smallest rotation, to within
+    max_tilt radians of the line of normals [N, 3] (unit; either direction); unit quaternions."""
+    quats = F.normalize(quats, dim=-1)
+    axis3 = quaternion_to_matrix(quats)[..., 2]  # [N, 3] third column
+    cosine = (axis3 * normals).sum(dim=-1)
+    target = normals * torch.where(cosine < 0, -1.0, 1.0)[:, None]
+    tilt = torch.arccos(cosine.abs().clamp(max=1.0))
+    excess = (tilt - max_tilt).clamp_min(0.0)
+    turn = F.normalize(torch.cross(axis3, target, dim=-1), dim=-1)
+    return quaternion_multiply(axis_angle_to_quaternion(turn * excess[:, None]), quats)
+
+
+def straight_through(clipped: Tensor, raw: Tensor) -> Tensor:
+    """The clipped value forward, the identity backward: sg(clipped) + raw - sg(raw)."""
+    return raw + (clipped - raw).detach()
+
+
+def nearest_faces(points: Tensor, vertices: Tensor, faces: Tensor, candidates: int) -> Tensor:
+    """[P] index of the face nearest to each point [P, 3], among the `candidates` faces of
+    nearest centroid; the distance is to the point clipped into the face (`clip_to_face`)."""
+    centroids = vertices[faces].mean(dim=1)
+    k = min(candidates, faces.shape[0])
+    _, index = cKDTree(centroids.double().numpy()).query(points.detach().double().numpy(), k=k)
+    index = torch.from_numpy(np.asarray(index, dtype=np.int64).reshape(points.shape[0], k))
+    corners = vertices[faces[index]]  # [P, k, 3, 3]
+    near = points.detach()[:, None].expand(-1, k, 3)
+    local = to_face_local(near, corners)
+    on_face = from_face_local(clip_to_face(local, corners, torch.zeros(local.shape[:-1])),
+                              corners)
+    best = (on_face - near).norm(dim=-1).argmin(dim=1)
+    return index.gather(1, best[:, None])[:, 0]
+
+
+class MeshAnchor(Component):
+    """See the module docstring. Buffers: vertices [V, 3] and faces [F, 3] of the canonical mesh
+    the Gaussians are anchored to, cell (the marching-cubes cell, scene units)."""
+
+    def __init__(self, config: MeshAnchorConfig):
+        super().__init__()
+        if config.resolution < 2 or config.reanchor_every < 1:
+            raise SurgsplatError("mesh_anchor needs resolution >= 2 and reanchor_every >= 1")
+        self.config = config
+        self.register_buffer("vertices", torch.zeros(0, 3))
+        self.register_buffer("faces", torch.zeros(0, 3, dtype=torch.long))
+        self.register_buffer("cell", torch.zeros(()))
+        self._surface: list[Component] = []  # the method's SDF component (a plain reference)
+
+    def bind(self, components: Mapping[str, Component]) -> None:
+        fields = [c for c in components.values() if callable(getattr(c, "signed_distance", None))]
+        if not fields:
+            raise SurgsplatError("mesh_anchor needs a component with a signed distance field "
+                                 "(e.g. 'sdf') in the same method")
+        self._surface = fields[:1]
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        # the mesh's size is that of the saved run's last extraction
+        for name in ("vertices", "faces"):
+            saved = state_dict.get(prefix + name)
+            if saved is not None:
+                setattr(self, name, torch.empty_like(saved))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    # ---- the mesh and the anchors ----
+    @torch.no_grad()
+    def extract(self) -> None:
+        """The zero level set of the SDF as the mesh, without degenerate faces."""
+        field = self._surface[0]
+        vertices, faces, cell = marching_cubes(field.signed_distance, field.box,
+                                               self.config.resolution)
+        vertices = torch.from_numpy(vertices).float()
+        faces = torch.from_numpy(faces)
+        corners = vertices[faces]
+        double_area = torch.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0],
+                                  dim=-1).norm(dim=-1)
+        self.vertices = vertices
+        self.faces = faces[double_area > 1e-6 * cell * cell]
+        self.cell.fill_(cell)
+
+    @torch.no_grad()
+    def anchor(self, gaussians: GaussianModel, rows: Tensor | None = None) -> None:
+        """Map the Gaussians `rows` (default all) to their nearest faces of the current mesh."""
+        anchors = gaussians.params[ANCHOR_KEY]
+        rows = torch.arange(anchors.shape[0]) if rows is None else rows
+        if rows.numel():
+            means = gaussians.params["means"][rows]
+            anchors[rows] = nearest_faces(means, self.vertices, self.faces,
+                                          self.config.candidate_faces).to(anchors.dtype)
+
+    def unanchored(self, gaussians: GaussianModel) -> Tensor:
+        """Indices of the Gaussians without a valid face of the current mesh."""
+        anchors = gaussians.params[ANCHOR_KEY].detach()
+        return ((anchors < 0) | (anchors >= self.faces.shape[0])).nonzero()[:, 0]
+
+    def face_corners(self, gaussians: GaussianModel) -> Tensor:
+        """[N, 3, 3] the corners of every Gaussian's face."""
+        return self.vertices[self.faces[gaussians.params[ANCHOR_KEY].detach().long()]]
+
+    def face_radius(self, corners: Tensor) -> Tensor:
+        """[N] r_k of the clips: the inradius, at least min_face_radius cells."""
+        return inradius(corners).clamp_min(self.config.min_face_radius * float(self.cell))
+
+    # ---- the component contract ----
+    def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
+        return {ANCHOR_KEY: torch.full((context.points.shape[0],), -1.0)}
+
+    def attribute_lrs(self) -> dict[str, float]:
+        return {ANCHOR_KEY: 0.0}
+
+    def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
+        if iteration % self.config.reanchor_every == 0:
+            self.extract()
+            self.anchor(gaussians)
+
+    def transform(self, state: GaussianState, gaussians: GaussianModel,
+                  when: FrameTime) -> GaussianState:
+        """The anchored canonical Gaussians (see the module docstring); tool Gaussians as they
+        are."""
+        if self.faces.shape[0] == 0:
+            self.extract()
+        missing = self.unanchored(gaussians)
+        if missing.numel():
+            self.anchor(gaussians, missing)
+        config = self.config
+        corners = self.face_corners(gaussians)  # [N, 3, 3]
+        radius = self.face_radius(corners)  # [N]
+        local = clip_to_face(to_face_local(state.means, corners), corners,
+                             config.offset_band * radius)
+        means = from_face_local(local, corners)
+        in_face, normal = config.scale_limit, config.scale_limit * config.normal_scale_ratio
+        limits = radius[:, None] * torch.tensor([in_face, in_face, normal])  # [N, 3]
+        scales = torch.minimum(state.scales, limits)
+        quats = clip_tilt(state.quats, face_frames(corners)[..., 2],
+                          math.radians(config.max_tilt_deg))
+        tissue = tissue_members(gaussians.params)
+        if tissue is not None:
+            means = torch.where(tissue[:, None], means, state.means)
+            scales = torch.where(tissue[:, None], scales, state.scales)
+            quats = torch.where(tissue[:, None], quats, state.quats)
+        return state.replace(means=straight_through(means, state.means),
+                             scales=straight_through(scales, state.scales),
+                             quats=straight_through(quats, state.quats))

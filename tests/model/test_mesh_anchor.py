@@ -1,0 +1,248 @@
+"""Mesh-anchored Gaussians (DRAWER): face frames, clips, straight-through gradients, re-anchoring,
+the bind / after_step hooks, and a tiny `drawer` run."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import pytest
+import torch
+from torch import Tensor, nn
+
+from surgsplat.data.scene import load_scene
+from surgsplat.methods.registry import method_config
+from surgsplat.model.component import Component, ComponentConfig, FrameTime
+from surgsplat.model.gaussians import GaussianConfig, GaussianModel
+from surgsplat.model.mesh_anchor import (ANCHOR_KEY, MeshAnchor, MeshAnchorConfig, clip_tilt,
+                                         clip_to_face, face_frames, from_face_local, inradius,
+                                         planar_corners, to_face_local)
+from surgsplat.model.state import GaussianState
+from surgsplat.render.rotation import quaternion_to_matrix
+from surgsplat.train.per_gaussian import append_gaussians
+from surgsplat.train.trainer import Trainer
+
+pytest.importorskip("skimage")
+
+
+def random_faces(count: int, generator: torch.Generator) -> Tensor:
+    """[count, 3, 3] float64 triangles of random shape, position and orientation."""
+    return torch.randn(count, 3, 3, dtype=torch.float64, generator=generator) * 2.0
+
+
+def barycentric(points: Tensor, corners: Tensor) -> Tensor:
+    """[P, 3] barycentric coordinates of in-plane points [P, 2] (face coordinates)."""
+    p1, p2 = planar_corners(corners)
+    matrix = torch.stack([p1, p2], dim=-1)  # [P, 2, 2] columns p1, p2
+    lambdas = torch.linalg.solve(matrix, points)
+    return torch.cat([1.0 - lambdas.sum(dim=1, keepdim=True), lambdas], dim=1)
+
+
+def test_face_local_coordinates_round_trip_in_float64():
+    generator = torch.Generator().manual_seed(0)
+    corners = random_faces(500, generator)
+    points = torch.randn(500, 3, dtype=torch.float64, generator=generator) * 5.0
+    frames = face_frames(corners)
+    eye = torch.eye(3, dtype=torch.float64).expand(500, 3, 3)
+    torch.testing.assert_close(frames.transpose(1, 2) @ frames, eye, atol=1e-12, rtol=0)
+    assert torch.all(torch.linalg.det(frames) > 0)  # right-handed
+    local = to_face_local(points, corners)
+    torch.testing.assert_close(from_face_local(local, corners), points, atol=1e-12, rtol=0)
+    # v1 lies on the x axis, v2 above it, every corner in the plane z = 0
+    corner_local = to_face_local(corners, corners[:, None].expand(-1, 3, 3, 3))
+    torch.testing.assert_close(corner_local[:, :, 2], torch.zeros(500, 3, dtype=torch.float64),
+                               atol=1e-12, rtol=0)
+    assert torch.all(corner_local[:, 2, 1] > 0)
+
+
+def test_clip_keeps_positions_in_the_face_and_offsets_in_their_band():
+    generator = torch.Generator().manual_seed(1)
+    corners = random_faces(400, generator)
+    local = torch.randn(400, 3, dtype=torch.float64, generator=generator) * 4.0
+    band = inradius(corners) * 2.0
+    clipped = clip_to_face(local, corners, band)
+    assert torch.all(clipped[:, 2].abs() <= band + 1e-12)
+    assert torch.all(barycentric(clipped[:, :2], corners) >= -1e-9)
+    # a point already inside the triangle and the band is left where it is
+    weights = torch.rand(400, 3, dtype=torch.float64, generator=generator)
+    weights = weights / weights.sum(dim=1, keepdim=True)
+    inside = to_face_local((weights[:, :, None] * corners).sum(dim=1), corners)
+    inside[:, 2] = band * 0.5
+    torch.testing.assert_close(clip_to_face(inside, corners, band), inside, atol=1e-10, rtol=0)
+
+
+def test_tilt_clip_bounds_the_angle_to_the_normal_and_keeps_small_tilts():
+    generator = torch.Generator().manual_seed(2)
+    quats = torch.randn(300, 4, dtype=torch.float64, generator=generator)
+    normals = nn.functional.normalize(torch.randn(300, 3, dtype=torch.float64,
+                                                  generator=generator), dim=1)
+    limit = math.radians(20.0)
+    clipped = clip_tilt(quats, normals, limit)
+    axis3 = quaternion_to_matrix(clipped)[..., 2]
+    tilt = torch.arccos((axis3 * normals).sum(dim=1).abs().clamp(max=1.0))
+    assert float(tilt.max()) <= limit + 1e-6
+    before = quaternion_to_matrix(quats)[..., 2]
+    small = torch.arccos((before * normals).sum(dim=1).abs().clamp(max=1.0)) <= limit
+    assert small.any()
+    torch.testing.assert_close(quaternion_to_matrix(clipped[small]),
+                               quaternion_to_matrix(quats[small]), atol=1e-9, rtol=0)
+
+
+@dataclass
+class BallConfig(ComponentConfig, kind="test_ball_sdf"):
+    """A sphere of `radius` as the method's signed distance field."""
+
+    radius: float = 1.0
+
+    def build(self) -> "Ball":
+        return Ball(self.radius)
+
+
+class Ball(Component):
+    def __init__(self, radius: float):
+        super().__init__()
+        self.radius = radius
+        self.register_buffer("box", torch.tensor([[-1.5] * 3, [1.5] * 3]))
+
+    def signed_distance(self, points: Tensor) -> Tensor:
+        return points.norm(dim=1) - self.radius
+
+
+def anchored_model(count: int, ball: Ball, config: MeshAnchorConfig) -> tuple[MeshAnchor,
+                                                                               GaussianModel]:
+    generator = torch.Generator().manual_seed(3)
+    direction = nn.functional.normalize(torch.randn(count, 3, generator=generator), dim=1)
+    points = direction * (ball.radius + 0.2 * torch.randn(count, 1, generator=generator))
+    attributes = {ANCHOR_KEY: torch.full((count,), -1.0)}
+    gaussians = GaussianModel.from_points(points, torch.rand(count, 3, generator=generator),
+                                          GaussianConfig(), attributes)
+    gaussians.params["quats"].data = torch.randn(count, 4, generator=generator)
+    gaussians.params["log_scales"].data += 1.0  # larger than the clip allows
+    anchor = config.build()
+    anchor.bind({"anchor": anchor, "sdf": ball})
+    return anchor, gaussians
+
+
+def state_of(gaussians: GaussianModel) -> GaussianState:
+    params = gaussians.params
+    return GaussianState(params["means"], params["log_scales"].exp(), params["quats"],
+                         torch.sigmoid(params["opacity_logits"]), gaussians.sh_coeffs(), 1)
+
+
+def within_band(anchor: MeshAnchor, gaussians: GaussianModel, state: GaussianState,
+                tolerance: float) -> None:
+    """Every anchored centre lies in its face's triangle and normal band, with scales and tilt
+    within their limits (tolerance: scene units)."""
+    config = anchor.config
+    corners = anchor.face_corners(gaussians).double()
+    radius = anchor.face_radius(corners)
+    local = to_face_local(state.means.detach().double(), corners)
+    assert torch.all(local[:, 2].abs() <= config.offset_band * radius + tolerance)
+    assert torch.all(barycentric(local[:, :2], corners) >= -1e-4)
+    limit = config.scale_limit * radius
+    scales = state.scales.detach().double()
+    assert torch.all(scales[:, :2] <= limit[:, None] + tolerance)
+    assert torch.all(scales[:, 2] <= limit * config.normal_scale_ratio + tolerance)
+
+
+def test_anchored_gaussians_are_clipped_forward_and_straight_through_backward():
+    ball = Ball(1.0)
+    anchor, gaussians = anchored_model(600, ball, MeshAnchorConfig(resolution=24))
+    state = anchor.transform(state_of(gaussians), gaussians, FrameTime(0, 0.0))
+    assert anchor.unanchored(gaussians).numel() == 0  # anchored at the first transform
+    # resolution 24 over a box of side 3: cells of 0.125; floats: tolerance 1e-5
+    within_band(anchor, gaussians, state, 1e-5)
+    raw = gaussians.params["means"].detach()
+    assert float((state.means.detach() - raw).norm(dim=1).max()) > 0.05  # the clip acted
+    weights = torch.randn(600, 3)
+    loss = (weights * state.means).sum() + (weights * state.scales).sum() \
+        + (weights[:, :1] * state.quats).sum()
+    loss.backward()
+    params = gaussians.params
+    torch.testing.assert_close(params["means"].grad, weights, atol=0, rtol=0)
+    torch.testing.assert_close(params["log_scales"].grad, weights * params["log_scales"].exp(),
+                               atol=1e-6, rtol=1e-6)  # d exp(s) / ds, then the identity
+    torch.testing.assert_close(params["quats"].grad[:, 0], weights[:, 0], atol=0, rtol=0)
+
+
+def test_reanchoring_after_densification_keeps_every_gaussian_on_a_valid_face():
+    ball = Ball(1.0)
+    anchor, gaussians = anchored_model(300, ball, MeshAnchorConfig(resolution=24))
+    anchor.transform(state_of(gaussians), gaussians, FrameTime(0, 0.0))
+    optimizer = torch.optim.Adam([{"name": name, "params": [param]}
+                                  for name, param in gaussians.params.items()])
+    copies = {name: value.detach()[:50].clone() for name, value in gaussians.params.items()}
+    fresh = {name: value.detach()[50:80].clone() for name, value in gaussians.params.items()}
+    fresh[ANCHOR_KEY].fill_(-1.0)  # Gaussians no face was given yet
+    append_gaussians(gaussians, optimizer, {name: torch.cat([copies[name], fresh[name]])
+                                            for name in copies})
+    ball.radius = 0.8  # the surface moved: the next mesh has other faces
+    anchor.after_step(gaussians, anchor.config.reanchor_every)
+    assert anchor.unanchored(gaussians).numel() == 0
+    radius = anchor.vertices.norm(dim=1)
+    assert float((radius - 0.8).abs().max()) < 0.02  # the new mesh (cells of 0.125)
+    state = anchor.transform(state_of(gaussians), gaussians, FrameTime(0, 0.0))
+    within_band(anchor, gaussians, state, 1e-5)
+
+
+def test_a_run_saves_and_restores_the_mesh_of_its_anchors():
+    ball = Ball(1.0)
+    anchor, gaussians = anchored_model(100, ball, MeshAnchorConfig(resolution=16))
+    anchor.transform(state_of(gaussians), gaussians, FrameTime(0, 0.0))
+    restored = MeshAnchorConfig(resolution=16).build()
+    restored.load_state_dict(anchor.state_dict())
+    assert torch.equal(restored.faces, anchor.faces)
+    assert torch.equal(restored.vertices, anchor.vertices)
+
+
+def test_mesh_anchor_without_a_signed_distance_field_is_one_clear_error():
+    with pytest.raises(Exception, match="mesh_anchor needs a component with a signed distance"):
+        anchor = MeshAnchorConfig().build()
+        anchor.bind({"anchor": anchor})
+
+
+STEPS_SEEN: list[int] = []
+
+
+@dataclass
+class StepRecorderConfig(ComponentConfig, kind="test_step_recorder"):
+    """Records the iterations after_step is called with."""
+
+    def build(self) -> "StepRecorder":
+        return StepRecorder()
+
+
+class StepRecorder(Component):
+    def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
+        assert not torch.is_grad_enabled()
+        STEPS_SEEN.append(iteration)
+
+
+@pytest.mark.slow
+def test_a_tiny_drawer_run_keeps_its_gaussians_in_the_band_of_the_mesh(small_phantom, tmp_path):
+    scene = load_scene(small_phantom)
+    config = method_config("drawer")
+    config.train.iterations = 8
+    config.components["anchor"].reanchor_every = 4
+    config.components["anchor"].resolution = 64
+    config.components["sdf"].fit_steps = 40
+    config.components["recorder"] = StepRecorderConfig()
+    config.densify.start_iter, config.densify.every = 4, 4  # densify before the last re-anchor
+    STEPS_SEEN.clear()
+    trainer = Trainer(config, scene, tmp_path / "run")
+    count = trainer.model.gaussians.num_gaussians
+    trainer.fit()
+    assert STEPS_SEEN == list(range(1, 9))
+    model = trainer.model
+    anchor = model.components["anchor"]
+    gaussians = model.gaussians
+    assert gaussians.num_gaussians != count  # densification changed the Gaussians
+    assert anchor.unanchored(gaussians).numel() == 0
+    state = anchor.transform(model.canonical_state(), gaussians, FrameTime(0, 0.0))
+    tissue = gaussians.params["semantic_logit"].detach() >= 0
+    assert tissue.sum() > 0 and (~tissue).sum() > 0  # the tool field kept its tool Gaussians
+    sub = GaussianState(state.means[tissue], state.scales[tissue], state.quats[tissue],
+                        state.opacities[tissue], state.sh[tissue], state.sh_degree)
+    keep = GaussianModel({name: value.detach()[tissue] for name, value in gaussians.params.items()},
+                         gaussians.sh_degree)
+    within_band(anchor, keep, sub, 1e-4)  # scene units (mm), float32 on a ~50 mm scene
