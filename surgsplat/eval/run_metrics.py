@@ -39,6 +39,7 @@ from surgsplat.export.mesh import FrameMesh, MeshExtractor, coverage
 from surgsplat.image.pinhole import backproject, inside_image, project_points
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
+from surgsplat.model.physics import tissue_members
 from surgsplat.train.run import TrainedRun
 
 GEOMETRY_KEYS = ("chamfer_mm", "p2s_mean_mm", "p2s_median_mm", "p2s_p95_mm", "fscore_1mm")
@@ -107,9 +108,10 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
             row.update(frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
                                       gt_vertices, gt_faces, seed=frame.index))
             row.update(mesh_geometry(meshes.frame_mesh(frame), frame, gt_vertices, gt_faces))
-            row.update(gaussian_geometry(run.model.state_at(FrameTime(frame.index, frame.time))
-                                         .means.detach(), frame, gt_vertices, gt_faces,
-                                         seed=frame.index))
+            means = run.model.state_at(FrameTime(frame.index, frame.time)).means.detach()
+            tissue = tissue_members(run.model.gaussians.params)
+            row.update(gaussian_geometry(means if tissue is None else means[tissue], frame,
+                                         gt_vertices, gt_faces, seed=frame.index))
         gt_normals = normals_path(scene.root, frame.index)
         if options.geometry and gt_normals.is_file():
             normals, valid, normal_source = surface_normals(out, frame.camera.K)
@@ -168,7 +170,8 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
                          "uncovered region there, in grid cells",
         "gaussians_p2s": "distance of every deformed Gaussian centre that projects inside the "
                          "frame's field of view to the gt tissue mesh (Endo-GSG's P2S of the "
-                         "Gaussian point cloud), whatever its opacity",
+                         "Gaussian point cloud), whatever its opacity; tissue Gaussians only "
+                         "when a tool field marks some as tool",
         "normal_error_deg": "angle between rendered (or rendered-depth) and gt normals, "
                             "orientation-free, pooled over the tissue pixels of all test frames",
         "fps": "rendering the test frames, this machine",
