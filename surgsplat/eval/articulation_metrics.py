@@ -65,10 +65,10 @@ def articulation_metrics(estimate: dict, truth: dict, frames: list[int],
     true_angles = np.array([f["jaw_angles_deg"] for f in true])
     if np.median(cosine) < 0:
         angles = -angles
-    if ((angles[:, ::-1] - true_angles) ** 2).sum() < ((angles - true_angles) ** 2).sum():
+    if (_wrap(angles[:, ::-1] - true_angles) ** 2).sum() < (_wrap(angles - true_angles) ** 2).sum():
         angles = angles[:, ::-1]
-    squared = (angles - true_angles) ** 2  # [F, 2]
-    opening = np.abs(angles[:, 1] - angles[:, 0])
+    squared = _wrap(angles - true_angles) ** 2  # [F, 2]
+    opening = np.abs(_wrap(angles[:, 1] - angles[:, 0]))
     true_opening = np.array([f["jaw_opening_deg"] for f in true])
     metrics = {
         "hinge_axis_error_deg": float(axis_error.mean()),
@@ -82,3 +82,8 @@ def articulation_metrics(estimate: dict, truth: dict, frames: list[int],
     if test:
         metrics["jaw_angle_rmse_deg_test"] = float(np.sqrt(squared[test].mean()))
     return metrics
+
+
+def _wrap(degrees: np.ndarray) -> np.ndarray:
+    """Angle differences (degrees) wrapped into [-180, 180)."""
+    return (degrees + 180.0) % 360.0 - 180.0

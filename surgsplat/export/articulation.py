@@ -139,7 +139,7 @@ def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict
                         "hinge_point": shaft_to_world[:3, 3].tolist(),
                         "hinge_axis": shaft_to_world[:3, 2].tolist(),
                         "jaw_angles_deg": angles,
-                        "jaw_opening_deg": abs(angles[1] - angles[0]),
+                        "jaw_opening_deg": abs((angles[1] - angles[0] + 180.0) % 360.0 - 180.0),
                         "estimated": index in estimated})
     return {
         "units": {"length": unit, "angle": "deg"},

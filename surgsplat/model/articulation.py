@@ -31,7 +31,7 @@ and each jaw turns about the hinge. The estimate:
    refitted as a single rotation about it (ICP whose step is the closed-form planar rotation
    about the axis), on top of the shaft's motion of that frame.
 4. Absolute angles: the shaft's forward direction (its principal axis, oriented towards the
-   jaws) and each jaw's long axis (principal axis of its points, oriented away from the hinge;
+   jaws' centroid) and each jaw's long axis (principal axis of its points, oriented away from the hinge;
    both trimmed of the 20% of points farthest from the line)
    in the canonical frame, both projected onto the plane normal to the axis; a jaw's angle in
    a frame is its canonical angle from forward (right-hand rule about the axis) plus its
@@ -124,7 +124,12 @@ class Articulation:
     @property
     def opening_deg(self) -> np.ndarray:
         """[F] angle between the two jaws."""
-        return np.abs(self.jaw_angles_deg[:, 1] - self.jaw_angles_deg[:, 0])
+        return np.abs(_wrap_deg(self.jaw_angles_deg[:, 1] - self.jaw_angles_deg[:, 0]))
+
+
+def _wrap_deg(angles: np.ndarray) -> np.ndarray:
+    """Angles (degrees) wrapped into [-180, 180)."""
+    return (np.asarray(angles) + 180.0) % 360.0 - 180.0
 
 
 def estimate_articulation(canonical: np.ndarray, observations: list[Observation],
@@ -160,7 +165,8 @@ def estimate_articulation(canonical: np.ndarray, observations: list[Observation]
         labels = _reassign(canonical, labels, motions, usable, trees, options)
     between = np.linalg.inv(motions[:, JAW_A]) @ motions[:, JAW_B]  # [F, 4, 4] jaw b in jaw a
     axis, point = _hinge(between, canonical, labels)
-    forward = _principal(canonical[labels == SHAFT], towards=point, normal=axis)
+    forward = _principal(canonical[labels == SHAFT], towards=canonical[labels != SHAFT].mean(0),
+                         normal=axis)
     canonical_deg = np.array([_signed_angle(forward, _principal(
         canonical[labels == part], away=point, normal=axis), axis) for part in (JAW_A, JAW_B)])
     turns, observed = _constrained_angles(canonical, labels, motions, usable, axis, point,
@@ -168,7 +174,7 @@ def estimate_articulation(canonical: np.ndarray, observations: list[Observation]
     return Articulation(points=canonical, labels=labels, axis=axis, hinge_point=point, forward=forward,
                         frames=np.array([o.index for o in usable]),
                         shaft_motion=motions[:, SHAFT],
-                        jaw_angles_deg=canonical_deg[None, :] + np.degrees(turns),
+                        jaw_angles_deg=_wrap_deg(canonical_deg[None, :] + np.degrees(turns)),
                         jaw_observed=observed, canonical_jaw_deg=canonical_deg)
 
 
