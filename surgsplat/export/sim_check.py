@@ -4,8 +4,8 @@
   through its whole joint range and back (a cosine sweep over the given number of steps); the
   trace of commanded and achieved angles, the tracking error after the first `settle` steps,
   how far the joints ever leave their limits, and whether the state stayed finite.
-- `probe_drop`: a sphere dropped from above the tissue (against gravity, i.e. towards the
-  camera) over the hollow of the tissue's collider nearest its middle, simulated until it rests; its final speed and its
+- `probe_drop`: a sphere dropped from above the tissue (against gravity) over the hollow of
+  the tissue's collider nearest its middle, simulated until it rests; its final speed and its
   distance to the mesh surface (sphere centre to nearest mesh point, minus the radius).
 - `urdf_sweep`: the tool.urdf in PyBullet (DIRECT mode), each jaw driven to the ends of its
   range by position control; the angles reached.

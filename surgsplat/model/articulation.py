@@ -11,10 +11,11 @@ and each jaw turns about the hinge. The estimate:
    observation (trimmed ICP, which the shaft dominates); frames where it does not register
    (too few observed points near it) are left out. Every canonical point then gets a
    residual trajectory: per frame that sees it, its distance to the nearest observed point.
-   Points whose 95th-percentile residual is high (two-class Otsu split) move relative to the
-   tool; their largest spatially linked group is the jaws, the rest is the shaft.
-   The moving points are split into two jaws by 2-means of their displacement trajectories
-   (per frame, the vector to the nearest observed point): the jaws move in opposite ways.
+   Points whose 95th-percentile residual is high (above a two-class Otsu split and above the
+   inlier distance) move relative to the tool; their largest spatially linked group is the
+   jaws, the rest is the shaft. The moving points are split into two jaws by 2-means of their
+   displacement trajectories (per frame, the vector to the nearest observed point): the jaws
+   move in opposite ways.
    The tool Gaussians are sparse on the small jaws, so the canonical points are then densified
    with the observation of the frame the labelled jaws fit best (the frame nearest the
    canonical tool), each added point labelled as its nearest canonical point. Then
@@ -31,11 +32,10 @@ and each jaw turns about the hinge. The estimate:
    refitted as a single rotation about it (ICP whose step is the closed-form planar rotation
    about the axis), on top of the shaft's motion of that frame.
 4. Absolute angles: the shaft's forward direction (its principal axis, oriented towards the
-   jaws' centroid) and each jaw's long axis (principal axis of its points, oriented away from the hinge;
-   both trimmed of the 20% of points farthest from the line)
-   in the canonical frame, both projected onto the plane normal to the axis; a jaw's angle in
-   a frame is its canonical angle from forward (right-hand rule about the axis) plus its
-   fitted rotation there.
+   jaws' centroid) and each jaw's long axis (principal axis of its points, oriented away from
+   the hinge), both trimmed of the 20% of points farthest from the line and projected onto the
+   plane normal to the axis; a jaw's angle in a frame is its canonical angle from forward
+   (right-hand rule about the axis) plus its fitted rotation there, wrapped to [-180, 180).
 
 Everything is in the canonical tool frame and the scene's unit; `Articulation` holds the result.
 """
@@ -51,6 +51,8 @@ from scipy.spatial.transform import Rotation
 SHAFT, JAW_A, JAW_B = 0, 1, 2
 """Part labels of the canonical tool points."""
 PART_NAMES = ("shaft", "jaw_a", "jaw_b")
+MIN_TURN_DEG = 5.0
+"""The jaws must turn relative to each other by at least this in some frame for a hinge."""
 
 
 @dataclass(frozen=True)
@@ -171,7 +173,8 @@ def estimate_articulation(canonical: np.ndarray, observations: list[Observation]
         canonical[labels == part], away=point, normal=axis), axis) for part in (JAW_A, JAW_B)])
     turns, observed = _constrained_angles(canonical, labels, motions, usable, axis, point,
                                           options)
-    return Articulation(points=canonical, labels=labels, axis=axis, hinge_point=point, forward=forward,
+    return Articulation(points=canonical, labels=labels, axis=axis, hinge_point=point,
+                        forward=forward,
                         frames=np.array([o.index for o in usable]),
                         shaft_motion=motions[:, SHAFT],
                         jaw_angles_deg=_wrap_deg(canonical_deg[None, :] + np.degrees(turns)),
@@ -200,7 +203,7 @@ def _initial_parts(canonical: np.ndarray, observations: list[Observation], trees
     seen = np.isfinite(residual).sum(axis=1) > 0
     high = np.zeros(canonical.shape[0])  # [K] a high quantile of each point's residuals
     high[seen] = np.nanquantile(residual[seen], options.moving_quantile, axis=1)
-    moving = seen & (high > _otsu(high[seen]))
+    moving = seen & (high > max(_otsu(high[seen]), options.inlier_distance))
     moving[moving] = _largest_cluster(canonical[moving], options.cluster_radius)
     labels = np.full(canonical.shape[0], SHAFT)
     if moving.sum() < 2 * options.min_points:
@@ -377,11 +380,11 @@ def _hinge(between: np.ndarray, canonical: np.ndarray,
     translations = between[:, :3, 3]
     rotvecs = Rotation.from_matrix(rotations).as_rotvec()  # [F*2, 3] phi * w
     scatter = rotvecs.T @ rotvecs
-    eigenvalues, eigenvectors = np.linalg.eigh(scatter)
-    if eigenvalues[-1] < np.radians(2.0) ** 2:
-        raise ValueError("the jaws never turn relative to each other by more than 2 degrees: "
-                         "their hinge axis is undetermined")
+    _, eigenvectors = np.linalg.eigh(scatter)
     axis = eigenvectors[:, -1]
+    if np.abs(rotvecs @ axis).max() < np.radians(MIN_TURN_DEG):
+        raise ValueError(f"the jaws never turn relative to each other by more than "
+                         f"{MIN_TURN_DEG:g} degrees: their hinge axis is undetermined")
     system = (np.eye(3)[None] - rotations).reshape(-1, 3)  # (I - R) p = t
     point, *_ = np.linalg.lstsq(system, translations.reshape(-1), rcond=None)
     jaws = canonical[labels != SHAFT].mean(axis=0)
