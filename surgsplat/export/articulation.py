@@ -29,6 +29,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from surgsplat.atomic import write_text_atomic
+from surgsplat.data.phantom.kinematics import hinge_frame
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.image.pinhole import backproject, inside_image, project_points
 from surgsplat.model.articulation import (JAW_A, JAW_B, PART_NAMES, SHAFT, Articulation,
@@ -115,19 +116,9 @@ def articulate(run: TrainedRun,
                                           range(len(run.scene.frames))], run.scene.depth_unit)
 
 
-def shaft_frame(estimate: Articulation) -> np.ndarray:
-    """[4, 4] the canonical shaft frame: origin at the hinge point, x forward, z the axis."""
-    frame = np.eye(4)
-    frame[:3, 0] = estimate.forward
-    frame[:3, 1] = np.cross(estimate.axis, estimate.forward)
-    frame[:3, 2] = estimate.axis
-    frame[:3, 3] = estimate.hinge_point
-    return frame
-
-
 def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict:
     """JSON-ready articulation of every frame (poses: the tool field's, one per frame)."""
-    frame = shaft_frame(estimate)
+    frame = hinge_frame(estimate.forward, estimate.axis, estimate.hinge_point)  # canonical
     estimated = list(estimate.frames)
     records = []
     for index, pose in enumerate(poses):

@@ -19,15 +19,13 @@ pytest.importorskip("pybullet")
 FRAME = 8
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    """`surgsplat *args` in a subprocess (the `cli` fixture's runner, for a module fixture)."""
-    return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
-                          capture_output=True, text=True, timeout=300)
-
-
 @pytest.fixture(scope="module")
 def exported(small_phantom: Path, tmp_path_factory) -> tuple[Path, Path]:
     """(run folder, simulation folder of frame FRAME) of a 30-iteration physiosplat run."""
+    def run_cli(*args: str) -> subprocess.CompletedProcess:  # as the `cli` fixture runs it
+        return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
+                              capture_output=True, text=True, timeout=300)
+
     root = tmp_path_factory.mktemp("sim")
     run, sim = root / "run", root / "sim"
     trained = run_cli("train", "--method", "physiosplat", "--data", str(small_phantom),

@@ -24,15 +24,20 @@ TOOL_KINEMATICS_FILE = "gt/tool_kinematics.json"
 """Where a phantom keeps its tool kinematics, relative to the scene folder."""
 
 
-def shaft_to_world(pose: ToolPose) -> np.ndarray:
-    """[4, 4] float64: the shaft frame (x forward, y = hinge x forward, z hinge, origin at the
-    joint) in the world."""
+def hinge_frame(forward: np.ndarray, axis: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """[4, 4] float64 shaft frame: x `forward`, z the hinge `axis`, y = z x x, origin at the
+    hinge `point` (each [3], forward normal to axis)."""
     matrix = np.eye(4)
-    matrix[:3, 0] = pose.forward
-    matrix[:3, 1] = np.cross(pose.hinge, pose.forward)
-    matrix[:3, 2] = pose.hinge
-    matrix[:3, 3] = pose.joint
+    matrix[:3, 0] = forward
+    matrix[:3, 1] = np.cross(axis, forward)
+    matrix[:3, 2] = axis
+    matrix[:3, 3] = point
     return matrix
+
+
+def shaft_to_world(pose: ToolPose) -> np.ndarray:
+    """[4, 4] float64: the shaft frame of the tool `pose` in the world."""
+    return hinge_frame(pose.forward, pose.hinge, pose.joint)
 
 
 def jaw_angles_deg(pose: ToolPose) -> list[float]:
