@@ -13,7 +13,9 @@ that frame from its own observation or interpolated it (test frames always are):
   against the true one (in most frames) and its jaws matched to the true ones in the order
   that fits best (the same for all frames);
 - jaw_opening_rmse_deg: RMSE of the angle between the jaws (free of both choices);
-- jaw_angle_rmse_deg_test: jaw_angle_rmse_deg over the test frames among them.
+- jaw_angle_rmse_deg_test: jaw_angle_rmse_deg over the test frames among them;
+- *_estimated: hinge_axis_error_deg, hinge_offset_mm and jaw_angle_rmse_deg over the frames
+  estimated from their own observation (the others carry a neighbour's estimate).
 """
 
 from __future__ import annotations
@@ -81,6 +83,11 @@ def articulation_metrics(estimate: dict, truth: dict, frames: list[int],
     test = [k for k, i in enumerate(frames) if i in set(test_frames)]
     if test:
         metrics["jaw_angle_rmse_deg_test"] = float(np.sqrt(squared[test].mean()))
+    estimated = [k for k, f in enumerate(got) if f["estimated"]]
+    if estimated:
+        metrics["hinge_axis_error_deg_estimated"] = float(axis_error[estimated].mean())
+        metrics["hinge_offset_mm_estimated"] = float(offset[estimated].mean())
+        metrics["jaw_angle_rmse_deg_estimated"] = float(np.sqrt(squared[estimated].mean()))
     return metrics
 
 

@@ -178,7 +178,8 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
                         "jaw_angle_rmse_deg (axis sign and jaw order aligned to the truth), "
                         "jaw_opening_rmse_deg: RUN/articulation.json vs gt/tool_kinematics.json "
                         "over all frames whose tool mask covers >= 0.5% of the image "
-                        "(jaw_angle_rmse_deg_test: the test frames among them)",
+                        "(jaw_angle_rmse_deg_test: the test frames among them; *_estimated: "
+                        "the frames estimated from their own observation)",
         "normal_error_deg": "angle between rendered (or rendered-depth) and gt normals, "
                             "orientation-free, pooled over the tissue pixels of all test frames",
         "fps": "rendering the test frames, this machine",

@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+from scipy.interpolate import NearestNDInterpolator
 from scipy.spatial.transform import Rotation
 
 from surgsplat.atomic import write_text_atomic
@@ -94,7 +94,10 @@ def into_tissue(vertices: np.ndarray, view_direction: np.ndarray) -> np.ndarray:
 def height_field(vertices: np.ndarray, down: np.ndarray, right: np.ndarray,
                  step: float) -> HeightField:
     """Sample the surface `vertices` [V, 3] (metres) on a grid of spacing `step` as heights
-    against `down`; cells outside the surface's footprint take the nearest cell's height."""
+    against `down`: each grid point takes the mean height of the vertices nearest to it (its
+    cell), a point without vertices (a hole, or outside the surface) the nearest held one's.
+    (A linear interpolation over the vertices' triangulation would be smoother, but scipy's
+    point location falls back to a scan of every triangle for each point outside the hull.)"""
     up = -down / np.linalg.norm(down)
     x_axis = right - (right @ up) * up
     x_axis /= np.linalg.norm(x_axis)
@@ -106,13 +109,16 @@ def height_field(vertices: np.ndarray, down: np.ndarray, right: np.ndarray,
     rows = max(int(np.ceil((high[1] - low[1]) / step)) + 1, 2)
     xs = np.linspace(low[0], high[0], cols)
     ys = np.linspace(high[1], low[1], rows)  # row 0 at the largest y
-    grid_x, grid_y = np.meshgrid(xs, ys)
-    heights = LinearNDInterpolator(local[:, :2], local[:, 2])(grid_x, grid_y)
-    outside = np.isnan(heights)
-    if outside.any():
-        heights[outside] = NearestNDInterpolator(local[:, :2], local[:, 2])(
-            grid_x[outside], grid_y[outside])
-    heights = heights - low[2]
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)  # [rows * cols, 2]
+    col = np.rint((local[:, 0] - low[0]) / (xs[1] - xs[0])).astype(int)
+    row = np.rint((high[1] - local[:, 1]) / (ys[0] - ys[1])).astype(int)
+    cell = row * cols + col  # [V]
+    counts = np.bincount(cell, minlength=rows * cols)
+    heights = np.bincount(cell, local[:, 2], minlength=rows * cols) / np.maximum(counts, 1)
+    held = counts > 0
+    if not held.all():
+        heights[~held] = NearestNDInterpolator(grid[held], heights[held])(grid[~held])
+    heights = heights.reshape(rows, cols) - low[2]
     to_world = np.eye(4)
     to_world[:3, :3] = rotation
     to_world[:3, 3] = rotation @ np.array([centre[0], centre[1], low[2]])

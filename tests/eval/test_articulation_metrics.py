@@ -24,6 +24,7 @@ def test_a_flipped_axis_and_swapped_jaws_score_zero():
     assert metrics["jaw_angle_rmse_deg"] == pytest.approx(0.0, abs=1e-9)
     assert metrics["jaw_opening_rmse_deg"] == pytest.approx(0.0, abs=1e-9)
     assert metrics["articulation_frames"] == 4 and "jaw_angle_rmse_deg_test" in metrics
+    assert metrics["hinge_axis_error_deg_estimated"] == pytest.approx(0.0, abs=1e-6)
 
 
 def test_known_errors_are_reported():
