@@ -19,7 +19,6 @@ Targets (issue 16): hinge_axis_error_deg <= 5, jaw_angle_rmse_deg <= 3, export o
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import subprocess
 import sys
@@ -27,7 +26,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import results_path  # noqa: E402
+from bench_render import write_report  # noqa: E402
 
 from surgsplat.data.phantom import PhantomConfig, generate_phantom  # noqa: E402
 from surgsplat.data.scene import load_scene  # noqa: E402
@@ -35,7 +34,6 @@ from surgsplat.eval.articulation_metrics import (MIN_TOOL_FRACTION,  # noqa: E40
                                                  articulation_metrics, read_tool_kinematics)
 from surgsplat.export.articulation import read_articulation  # noqa: E402
 from surgsplat.export.sim_check import jaw_sweep, probe_drop, urdf_sweep  # noqa: E402
-from surgsplat.render.native import system_info  # noqa: E402
 from surgsplat.train.trainer import CHECKPOINT  # noqa: E402
 
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
@@ -77,22 +75,14 @@ def main() -> None:
     sweep = jaw_sweep(sim / "scene.xml", steps=1000)
     probe = probe_drop(sim / "scene.xml", sim / "tissue.obj")
     pybullet = urdf_sweep(sim / "tool.urdf")
-    info = system_info()
-    report = {"benchmark": "bench_articulation", "cpu": info["cpu"], "system": info,
-              "date": datetime.datetime.now(datetime.timezone.utc).isoformat(),
-              "method": args.method, "iters": args.iters, "frame": args.frame,
+    result = {"method": args.method, "iters": args.iters, "frame": args.frame,
               "train_seconds": train_seconds, "articulate_seconds": articulate_seconds,
               "export_seconds": export_seconds, **metrics, "jaw_sweep": sweep, "probe": probe,
-              "pybullet": pybullet, "targets": TARGETS,
-              "command": f"python benchmarks/bench_articulation.py --iters {args.iters} "
-                         f"--method {args.method} --frame {args.frame}"}
-    print(json.dumps({k: v for k, v in report.items() if k not in ("system", "jaw_sweep")},
-                     indent=1))
+              "pybullet": pybullet, "targets": TARGETS}
+    print(json.dumps({k: v for k, v in result.items() if k != "jaw_sweep"}, indent=1))
     print(json.dumps(sweep["trace"]))
     if args.json:
-        out = results_path("bench_articulation", info["cpu"])
-        out.write_text(json.dumps(report, indent=1) + "\n")
-        print(f"results: {out}")
+        print(f"results: {write_report('bench_articulation', result, None)}")
 
 
 if __name__ == "__main__":
