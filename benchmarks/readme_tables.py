@@ -2,7 +2,7 @@
 benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of README.md, for the
 benchmarks bench_render, bench_threads, bench_outputs, bench_auto_masks,
-bench_shading_depth, bench_batch and bench_long_clip, and for every suite of bench_methods
+bench_shading_depth, bench_batch, bench_long_clip and bench_articulation, and for every suite of bench_methods
 whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
 hand.
 
@@ -191,10 +191,50 @@ def long_clip_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def articulation_table(report: dict) -> str:
+    """Markdown for one bench_articulation report: the articulation's errors, the export's
+    time and what the simulated scene did, each with its target where the issue sets one."""
+    sweep, probe, targets = report["jaw_sweep"], report["probe"], report["targets"]
+    lines = [
+        f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
+        f"{report['date'][:10]}, `{report['method']}` at {report['iters']} iterations on the "
+        f"full pulling phantom, {report['articulation_frames']} frames with the tool "
+        f"({report['articulation_frames_estimated']} estimated from their own observation), "
+        f"simulation export of frame {report['frame']}:",
+        "",
+        "| measure | value | target |",
+        "|---|---|---|",
+    ]
+    rows = [("hinge axis error, deg", report["hinge_axis_error_deg"], ".1f",
+             targets["hinge_axis_error_deg"]),
+            ("hinge axis error, frames estimated from their own observation, deg",
+             report["hinge_axis_error_deg_estimated"], ".1f", None),
+            ("hinge offset, mm", report["hinge_offset_mm"], ".1f", None),
+            ("hinge offset, frames estimated from their own observation, mm",
+             report["hinge_offset_mm_estimated"], ".1f", None),
+            ("jaw angle RMSE, deg", report["jaw_angle_rmse_deg"], ".1f",
+             targets["jaw_angle_rmse_deg"]),
+            ("jaw angle RMSE, frames estimated from their own observation, deg",
+             report["jaw_angle_rmse_deg_estimated"], ".1f", None),
+            ("jaw opening RMSE, deg", report["jaw_opening_rmse_deg"], ".1f", None),
+            ("articulate, s", report["articulate_seconds"], ".1f", None),
+            ("export --sim of one frame, s", report["export_seconds"], ".1f",
+             targets["export_seconds"]),
+            ("MuJoCo jaw tracking error, max deg (1,000 steps)",
+             sweep["max_tracking_error_deg"], ".2f", None),
+            ("MuJoCo jaw tracking error, mean deg", sweep["mean_tracking_error_deg"], ".2f", None),
+            ("probe resting distance to the tissue mesh, mm", probe["contact_distance_mm"],
+             ".2f", 1.0)]
+    for name, value, spec, target in rows:
+        bound = "" if target is None else f"<= {target:g}"
+        lines.append(f"| {name} | {format(value, spec)} | {bound} |")
+    return "\n".join(lines)
+
+
 RENDERERS = {"bench_render": render_table, "bench_threads": render_threads_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
              "bench_shading_depth": shading_depth_table, "bench_batch": methods_table,
-             "bench_long_clip": long_clip_table}
+             "bench_long_clip": long_clip_table, "bench_articulation": articulation_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A README region of one bench_methods suite, e.g. bench_methods_endoplanar."""
 

@@ -1,5 +1,6 @@
-"""`surgsplat export RUN --ply | --mesh`: the deformed Gaussians of chosen frames as 3DGS PLY
-files, and the tissue surface of chosen frames as triangle meshes."""
+"""`surgsplat export RUN --ply | --mesh | --sim DIR`: the deformed Gaussians of chosen frames as
+3DGS PLY files, the tissue surface of chosen frames as triangle meshes, and one frame as a
+simulation scene (MJCF + URDF + PLY, see `export.sim`)."""
 
 from __future__ import annotations
 
@@ -13,10 +14,13 @@ from rich.console import Console
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.scene import Scene
 from surgsplat.errors import SurgsplatError
+from surgsplat.export.articulation import (articulate, read_articulation, tool_field,
+                                           write_articulation)
 from surgsplat.export.mesh import MESH_FORMATS, MeshExtractor, MeshOptions, write_mesh
 from surgsplat.export.ply import write_gaussian_ply
+from surgsplat.export.sim import write_sim_scene
 from surgsplat.model.component import FrameTime
-from surgsplat.train.run import load_trained_run, run_lock
+from surgsplat.train.run import TrainedRun, load_trained_run, run_lock
 
 
 def chosen_moments(scene: Scene, frames: str, time: float | None) -> list[tuple[str, FrameTime]]:
@@ -62,14 +66,21 @@ def export_command(
         help="Marching-cubes cells along the SDF box's longest side.")] = MeshOptions.resolution,
     mesh_format: Annotated[str, typer.Option(
         "--format", help=f"Mesh file format: {', '.join(MESH_FORMATS)}.")] = "ply",
+    sim: Annotated[Path | None, typer.Option(
+        "--sim", help="Write one frame as a simulation scene into this folder: scene.xml (MJCF: "
+                      "tissue collider + visual mesh, grasper with revolute jaws and position "
+                      "actuators), tool.urdf, tissue.obj, gaussians.ply and sim.json, in metres. "
+                      "Needs a method with a tool field; RUN/articulation.json is estimated and "
+                      "written first when missing.")] = None,
+    frame: Annotated[int, typer.Option(help="The frame --sim exports.")] = 0,
     out: Annotated[Path | None, typer.Option(
         help="Folder (default RUN/export/ply and RUN/export/mesh).")] = None,
     data: Annotated[Path | None, typer.Option(
         help="Scene folder (default: the run's; its content must be the run's scene).")] = None,
 ) -> None:
-    """Export a trained run's deformed Gaussians and tissue meshes."""
-    if not (ply or mesh):
-        raise SurgsplatError("nothing to export: pass --ply and/or --mesh")
+    """Export a trained run's deformed Gaussians, tissue meshes and simulation scenes."""
+    if not (ply or mesh or sim):
+        raise SurgsplatError("nothing to export: pass --ply, --mesh and/or --sim DIR")
     if mesh_format not in MESH_FORMATS:
         raise SurgsplatError(f"--format: expected one of {', '.join(MESH_FORMATS)}, got "
                              f"{mesh_format!r}")
@@ -98,3 +109,37 @@ def export_command(
                 faces += len(frame_mesh.faces)
             console.print(f"{len(moments)} mesh file(s) ({extractor.route} route, "
                           f"{faces // max(len(moments), 1)} faces on average) in {folder}")
+        if sim:
+            export_sim(run, sim, frame, mesh_resolution, console)
+
+
+def export_sim(run: TrainedRun, folder: Path, index: int, mesh_resolution: int,
+               console: Console) -> None:
+    """Write frame `index` of `run` as a simulation scene into `folder`."""
+    count = len(run.scene.frames)
+    if not 0 <= index < count:
+        raise SurgsplatError(f"--frame: the scene has frames 0..{count - 1}; got {index}")
+    tool_field(run)  # the method must have a tool to export
+    articulation = read_articulation(run.run_dir)
+    if articulation is None:
+        articulation = articulate(run)
+        write_articulation(run.run_dir, articulation)
+    if len(articulation["frames"]) != count:
+        raise SurgsplatError(f"{run.run_dir / 'articulation.json'} describes "
+                             f"{len(articulation['frames'])} frames, the scene has {count}; "
+                             "delete it and run `surgsplat articulate RUN`")
+    chosen = run.scene.frames[index]
+    background = torch.tensor(run.config.train.background, dtype=torch.float32)
+    extractor = MeshExtractor(run.model, MeshOptions(resolution=mesh_resolution), background)
+    tissue_only = FrameTime(index, chosen.time, tissue_only=True)
+    with torch.no_grad():
+        tissue = extractor.frame_mesh(chosen, tissue_only)
+        gaussians = run.model.state_at(FrameTime(index, chosen.time))
+    camera_to_world = chosen.camera.camera_to_world.double().numpy()
+    meta = write_sim_scene(folder, articulation, index, tissue, gaussians,
+                           view_direction=camera_to_world[:3, 2], right=camera_to_world[:3, 0],
+                           unit=run.scene.depth_unit)
+    console.print(f"simulation scene of frame {index} in {folder}: scene.xml (MJCF), tool.urdf, "
+                  f"tissue.obj ({meta['tissue_faces']} faces), gaussians.ply "
+                  f"({meta['gaussians']} Gaussians); scale {meta['scale_m_per_unit']:g} m per "
+                  f"{meta['scene_unit']}", markup=False, highlight=False)

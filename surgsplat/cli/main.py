@@ -58,8 +58,8 @@ def _stoppable(command: Callable) -> Callable:
 
 
 def _register() -> None:
-    from surgsplat.cli import (batch, demo, eval_cmd, export_cmd, import_cmd, info, methods, phantom,
-                               render_videos, report_cmd, train, view)
+    from surgsplat.cli import (articulate_cmd, batch, demo, eval_cmd, export_cmd, import_cmd, info,
+                               methods, phantom, render_videos, report_cmd, train, view)
 
     for name, command in (("demo", demo.demo_command), ("phantom", phantom.phantom_command),
                           ("import", import_cmd.import_command), ("info", info.info_command),
@@ -67,6 +67,7 @@ def _register() -> None:
                           ("eval", eval_cmd.eval_command),
                           ("render", render_videos.render_command),
                           ("export", export_cmd.export_command),
+                          ("articulate", articulate_cmd.articulate_command),
                           ("report", report_cmd.report_command), ("view", view.view_command),
                           ("batch", batch.batch_command)):
         app.command(name)(_stoppable(command))

@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.progress import TextColumn
 
+from surgsplat.cli.articulate_cmd import articulate_and_write
 from surgsplat.cli.progress import progress_bar
 from surgsplat.data.scene import load_scene
 from surgsplat.errors import SurgsplatError
@@ -17,7 +18,7 @@ from surgsplat.methods.overrides import (apply_values, method_from_values, parse
                                          read_config_file)
 from surgsplat.methods.registry import PRESETS, method_config
 from surgsplat.train.checkpoint import previous_path
-from surgsplat.train.run import read_run_config, read_run_scene, run_lock
+from surgsplat.train.run import load_trained_run, read_run_config, read_run_scene, run_lock
 from surgsplat.train.trainer import CHECKPOINT, StepStats, Trainer
 
 
@@ -73,6 +74,11 @@ def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
                                  f"to {checkpoint}; continue with --resume") from None
     console.print(f"trained {trainer.iteration} iterations in {trainer.elapsed:.0f} s; "
                   f"{trainer.model.gaussians.num_gaussians} Gaussians; run folder: {out}")
+    if trainer.model.separates_tool:
+        try:
+            articulate_and_write(load_trained_run(out, data), console)
+        except SurgsplatError as err:
+            console.print(f"no articulation: {err}", markup=False, highlight=False)
     return trainer
 
 

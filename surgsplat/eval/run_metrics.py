@@ -35,6 +35,10 @@ from surgsplat.eval.decomposition import (CONVENTIONS as DECOMPOSITION_CONVENTIO
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import LPIPS, load_lpips, lpips_distance
 from surgsplat.eval.normals import normal_angle_deg, surface_normals
+from surgsplat.eval.articulation_metrics import (MIN_TOOL_FRACTION, articulation_metrics,
+                                                 read_tool_kinematics)
+from surgsplat.errors import SurgsplatError
+from surgsplat.export.articulation import articulate, read_articulation, write_articulation
 from surgsplat.export.mesh import FrameMesh, MeshExtractor, coverage
 from surgsplat.image.pinhole import backproject, inside_image, project_points
 from surgsplat.model.component import FrameTime
@@ -132,6 +136,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         metrics["normal_error_deg_median"] = float(pooled.median())
         metrics["normal_source"] = normal_source
     metrics.update(decomposition.metrics())
+    metrics.update(articulation_row(run))
     unit = scene.depth_unit
     for key in ("depth_rmse", "depth_rmse_occluded"):
         if key in metrics:
@@ -172,6 +177,12 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
                          "frame's field of view to the gt tissue mesh (Endo-GSG's P2S of the "
                          "Gaussian point cloud), whatever its opacity; tissue Gaussians only "
                          "when a tool field marks some as tool",
+        "articulation": "hinge_axis_error_deg (orientation-free, mean), hinge_offset_mm, "
+                        "jaw_angle_rmse_deg (axis sign and jaw order aligned to the truth), "
+                        "jaw_opening_rmse_deg: RUN/articulation.json vs gt/tool_kinematics.json "
+                        "over all frames whose tool mask covers >= 0.5% of the image "
+                        "(jaw_angle_rmse_deg_test: the test frames among them; *_estimated: "
+                        "the frames estimated from their own observation)",
         "normal_error_deg": "angle between rendered (or rendered-depth) and gt normals, "
                             "orientation-free, pooled over the tissue pixels of all test frames",
         "fps": "rendering the test frames, this machine",
@@ -179,6 +190,26 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         **DECOMPOSITION_CONVENTIONS,
     }
     return metrics
+
+
+def articulation_row(run: TrainedRun) -> dict:
+    """Hinge and jaw-angle errors (see articulation_metrics.py) when the scene has true tool
+    kinematics and the run a tool field; RUN/articulation.json is estimated and written when
+    missing; an estimate that cannot be made gives a note instead."""
+    truth = read_tool_kinematics(run.scene.root)
+    if truth is None or not run.model.separates_tool:
+        return {}
+    estimate = read_articulation(run.run_dir)
+    if estimate is None:
+        try:
+            estimate = articulate(run)
+        except SurgsplatError as err:
+            return {"articulation_note": str(err)}
+        write_articulation(run.run_dir, estimate)
+    frames = [f.index for f in run.scene.frames if float(f.tool.float().mean())
+              >= MIN_TOOL_FRACTION]
+    return articulation_metrics(estimate, truth, frames,
+                                [f.index for f in run.scene.test_frames])
 
 
 def image_row(pred: torch.Tensor, gt: torch.Tensor, tissue: torch.Tensor,

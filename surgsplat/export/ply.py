@@ -76,11 +76,12 @@ def read_gaussian_ply(path: Path) -> GaussianState:
     if rest_count % 3 or (degree + 1) ** 2 != num_coeffs:
         raise DataError(path, f"has {rest_count} f_rest_* properties; expected 3 ((d+1)^2 - 1)")
 
-    def stack(columns) -> torch.Tensor:
-        return torch.from_numpy(np.stack([np.asarray(vertex[c], dtype=np.float32)
-                                          for c in columns], axis=1))
+    def stack(columns) -> torch.Tensor:  # [N, len(columns)] (degree-0 files have no f_rest_*)
+        arrays = [np.asarray(vertex[c], dtype=np.float32) for c in columns]
+        return torch.from_numpy(np.stack(arrays, axis=1) if arrays
+                                else np.zeros((vertex.count, 0), dtype=np.float32))
 
-    rest = stack(rest_names(num_coeffs)).reshape(-1, 3, num_coeffs - 1).transpose(1, 2)
+    rest = stack(rest_names(num_coeffs)).reshape(vertex.count, 3, num_coeffs - 1).transpose(1, 2)
     return GaussianState(means=stack(POSITION), scales=stack(SCALE).exp(),
                          quats=stack(ROTATION), opacities=torch.sigmoid(stack(("opacity",))[:, 0]),
                          sh=torch.cat([stack(DC)[:, None, :], rest], dim=1), sh_degree=degree)

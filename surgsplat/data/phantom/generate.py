@@ -17,6 +17,8 @@ poses_bounds.npy (each frame's endoscope pose) and scene.json, the folder holds 
                                  hivar): tissue_images = albedo * shading + specular, clipped
     gt/light_intensity.json      list of the per-frame light intensities (same lightings)
     gt/camera_poses.npy          float64 [N, 4, 4] OpenCV world-to-camera of every frame
+    gt/tool_kinematics.json      the tool's shaft pose, hinge axis and point, and jaw angles per
+                                 frame, world frame, mm and degrees (see `kinematics`)
 
 The world frame is the first frame's camera frame (see `camera_path`), so for the default
 static camera every pose is the identity and world = camera space.
@@ -36,6 +38,7 @@ import numpy as np
 
 from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem
 from surgsplat.data.phantom.camera_path import CAMERAS
+from surgsplat.data.phantom.kinematics import TOOL_KINEMATICS_FILE, tool_kinematics
 from surgsplat.data.phantom.mesh import grid_mesh
 from surgsplat.data.phantom.motion import MOTIONS
 from surgsplat.data.phantom.scene import PhantomFrame, PhantomScene
@@ -190,6 +193,9 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
     if writes_shading:
         (out_dir / LIGHT_INTENSITY_FILE).write_text(json.dumps(intensities) + "\n")
     np.save(out_dir / CAMERA_POSES_FILE, np.stack(poses))
+    tool_poses = [scene.tool_pose(scene.time(index)) for index in range(num_frames)]
+    (out_dir / TOOL_KINEMATICS_FILE).write_text(
+        json.dumps(tool_kinematics(tool_poses, scene.geometry), indent=1) + "\n")
     writer.finish()
 
 
@@ -224,6 +230,7 @@ def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
                "albedo": ALBEDO_DIR, "normals": NORMALS_DIR, "meshes": MESHES_DIR,
                "highlights": HIGHLIGHTS_DIR,
                "exposure": EXPOSURE_FILE, "camera_poses": CAMERA_POSES_FILE,
+               "tool_kinematics": TOOL_KINEMATICS_FILE,
                "depth_unit": "mm", "frames": "depth and normals: per-frame camera space; "
                                              "meshes: world frame (= frame 0's camera)"},
     }
