@@ -82,6 +82,9 @@ def test_missing_or_corrupt_runs_give_one_clear_line(exported, tmp_path, cli, on
     run, _ = exported
     missing = one_error_line(cli("export", str(tmp_path / "nothing"), "--sim", str(tmp_path / "a")))
     assert "nothing" in missing
+    out_of_range = one_error_line(cli("export", str(run), "--sim", str(tmp_path / "f"),
+                                      "--frame", "9999"))
+    assert "--frame" in out_of_range and "9999" in out_of_range
     broken = tmp_path / "broken"
     shutil.copytree(run, broken)
     (broken / "articulation.json").write_text("{not json")
