@@ -85,6 +85,7 @@ def test_missing_or_corrupt_runs_give_one_clear_line(exported, tmp_path, cli, on
     out_of_range = one_error_line(cli("export", str(run), "--sim", str(tmp_path / "f"),
                                       "--frame", "9999"))
     assert "--frame" in out_of_range and "9999" in out_of_range
+    assert "nothing" in one_error_line(cli("articulate", str(tmp_path / "nothing")))
     broken = tmp_path / "broken"
     shutil.copytree(run, broken)
     (broken / "articulation.json").write_text("{not json")

@@ -17,6 +17,7 @@ from surgsplat.data.scene import load_scene
 from surgsplat.data.tool_masks import offset_tool_masks
 from surgsplat.errors import SurgsplatError
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
+from surgsplat.export.articulation import articulate
 from surgsplat.methods.overrides import apply_values
 from surgsplat.methods.registry import method_config
 from surgsplat.model.physics import SEMANTIC_KEY
@@ -50,6 +51,8 @@ def test_physiosplat_trains_scores_the_tool_free_render_and_writes_its_videos(
     Trainer(other, scene, tmp_path / "plain").fit()
     with pytest.raises(SurgsplatError, match="--tool-free: .* has no tool field"):
         render_command(tmp_path / "plain", tool_free=True)
+    with pytest.raises(SurgsplatError, match="has no tool field, so it has no tool to articulate"):
+        articulate(load_trained_run(tmp_path / "plain"))
 
 
 def test_tool_mask_offset_grows_and_shrinks_training_masks_only(small_phantom):
