@@ -65,12 +65,16 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                 row_last[row] = start;
                 for (int col = 0; col < kTile; ++col) row_last[row] = std::max(row_last[row], last[row][col]);
             }
-            for (int32_t k = end - 1; k >= start; --k) {
+            // Gaussians behind every pixel's last contributor (where compositing stopped) have
+            // no gradient: the walk back to front starts at the tile's last contributor.
+            const int32_t tile_last = *std::max_element(row_last, row_last + kTile);
+            for (int32_t k = tile_last - 1; k >= start; --k) {
                 const int32_t g = bins.ids[k];
                 if (k - kPrefetchAhead >= start) {
                     const int32_t ahead = bins.ids[k - kPrefetchAhead];
                     prefetch_splat(means2d, conics, opacities, features, channels, bins, ahead);
-                    __builtin_prefetch(mine + ahead * stride, 1);
+                    __builtin_prefetch(mine + ahead * stride, 1);  // both lines a slot may span
+                    __builtin_prefetch(mine + (ahead + 1) * stride - 1, 1);
                 }
                 const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
                 const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;

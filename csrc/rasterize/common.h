@@ -75,25 +75,18 @@ struct PixelBox {
     int32_t x0, y0, x1, y1;
 };
 
-// The columns [x_lo, x_hi] (pixel coordinates) where row offset dy of a Gaussian can reach
-// alpha >= kAlphaMin: {q(dx, dy) <= q_max} is an interval in dx. Returns false when empty.
-inline bool row_reach(float mx, float a, float b, float c, float q_max, float dy,
-                      float& x_lo, float& x_hi) {
-    const float disc = dy * dy * (b * b - a * c) + a * q_max;
-    if (!(disc > 0.0f)) return false;
-    const float centre = mx - b * dy / a, half = std::sqrt(disc) / a;
-    x_lo = centre - half;
-    x_hi = centre + half;
-    return true;
-}
-
-// Whether row offset dy of a Gaussian reaches any pixel centre of the tile starting at px0.
+// Whether row offset dy of a Gaussian reaches any pixel centre of the tile starting at px0:
+// {q(dx, dy) <= q_max} is the interval of columns mx - b dy / a +- sqrt(disc) / a, with
+// disc = dy^2 (b^2 - a c) + a q_max. A projected conic is positive definite (a > 0), so the
+// interval is compared with the tile scaled by a: no division in this per-row test.
 inline bool row_touches_tile(float mx, float a, float b, float c, float q_max, float dy,
                              int px0) {
-    float x_lo, x_hi;
+    const float disc = dy * dy * (b * b - a * c) + a * q_max;
+    if (!(disc > 0.0f)) return false;
     constexpr float kMargin = 0.01f;  // pixels, against rounding
-    return row_reach(mx, a, b, c, q_max, dy, x_lo, x_hi) &&
-           x_hi + kMargin >= px0 + 0.5f && x_lo - kMargin <= px0 + kTile - 0.5f;
+    const float centre = a * mx - b * dy, half = std::sqrt(disc);
+    return centre + half >= a * (px0 + 0.5f - kMargin) &&
+           centre - half <= a * (px0 + kTile - 0.5f + kMargin);
 }
 
 // Tile lists: Gaussians overlapping tile t are ids[offsets[t] .. offsets[t+1]), nearest first.

@@ -83,3 +83,20 @@ def test_empty_mask_gives_zero_and_bad_shapes_raise():
         masked_l1(pred, gt[:-1], mask)
     with pytest.raises(ValueError):
         d_ssim(pred, gt, mask.float())
+
+
+def test_masked_l1_gradient_matches_autograd_of_the_plain_formula():
+    """The written-out gradient equals autograd's through |pred - gt| * weights (float64,
+    exact to 1e-12), and passes gradcheck; gt requiring a gradient is refused."""
+    pred, gt, mask = images(dtype=torch.float64)
+    weights = torch.rand(mask.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    pred.requires_grad_()
+    masked_l1(pred, gt, mask, weights).backward()
+    written = pred.grad.clone()
+    pred.grad = None
+    count = mask.sum() * 3
+    (((pred - gt).abs() * (weights * mask)[..., None]).sum() / count).backward()
+    torch.testing.assert_close(written, pred.grad, rtol=0, atol=1e-12)
+    assert torch.autograd.gradcheck(lambda p: masked_l1(p, gt, mask, weights), (pred,))
+    with pytest.raises(ValueError, match="must not require gradients"):
+        masked_l1(pred, gt.clone().requires_grad_(), mask)
