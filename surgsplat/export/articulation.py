@@ -6,7 +6,7 @@ training frame's observed tool points: its tool-mask pixels back-projected with 
 into the canonical tool frame by the inverse of the tool field's pose. Test frames are not used;
 each jaw's angles are interpolated (linearly in frame index) between the frames that saw that
 jaw, as are frames without enough tool in view; such frames take the shaft motion of the
-nearest estimated frame.
+estimated frames around them (interpolated).
 
 articulation.json (world frame = the scene's, lengths in the scene's depth unit, degrees):
     units, frame, method: what the numbers are
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.data.phantom.kinematics import hinge_frame
@@ -111,8 +111,7 @@ def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict
     estimated = list(estimate.frames)
     records = []
     for index, pose in enumerate(poses):
-        nearest = int(np.abs(estimate.frames - index).argmin())
-        shaft_to_world = pose @ estimate.shaft_motion[nearest] @ frame
+        shaft_to_world = pose @ shaft_motion_at(estimate, index) @ frame
         angles = [float(np.interp(index, estimate.frames[estimate.jaw_observed[:, j]],
                                   estimate.jaw_angles_deg[estimate.jaw_observed[:, j], j]))
                   for j in range(2)]
@@ -141,6 +140,24 @@ def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict
                        for j in range(2)],
         "frames": records,
     }
+
+
+def shaft_motion_at(estimate: Articulation, index: int) -> np.ndarray:
+    """[4, 4] the shaft's motion (the residual of the tool field's pose) at frame `index`:
+    estimated there, else interpolated between the estimated frames around it (rotation
+    slerped, translation linear in frame index), the nearest one's outside them."""
+    frames = estimate.frames
+    after = int(np.searchsorted(frames, index))
+    if after < len(frames) and frames[after] == index:
+        return estimate.shaft_motion[after]
+    if after == 0 or after == len(frames):
+        return estimate.shaft_motion[min(after, len(frames) - 1)]
+    pair = estimate.shaft_motion[after - 1:after + 1]  # [2, 4, 4]
+    weight = (index - frames[after - 1]) / (frames[after] - frames[after - 1])
+    motion = np.eye(4)
+    motion[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(pair[:, :3, :3]))(weight).as_matrix()
+    motion[:3, 3] = (1 - weight) * pair[0, :3, 3] + weight * pair[1, :3, 3]
+    return motion
 
 
 def part_geometry(estimate: Articulation, frame: np.ndarray) -> dict:

@@ -10,8 +10,9 @@ in both (degrees of roll, millimetres of slide on the phantom). So every frame's
 measured from its own observation, and the roll from the jaws:
 
 1. The shaft, per frame: a cylinder fitted to the observed points (robust least squares, the
-   jaws are outliers). Its surface points run along the axis without gaps; the front end of
-   that run is the hinge point. The forward direction (shaft into jaws) points to the end
+   jaws are outliers). Its surface points fill the axis densely (a jaw crossing the cylinder
+   leaves only sparse ones); the front end of that dense run is the hinge point. The cylinder
+   is fitted again without the points beyond the run. The forward direction (shaft into jaws) points to the end
    whose off-cylinder points (cap and jaws) outnumber the other's, voted over all frames.
    Frames whose fitted radius is off the median (too little shaft seen) are left out.
    The observed points ahead of the hinge are the jaws.
@@ -20,14 +21,18 @@ measured from its own observation, and the roll from the jaws:
    are split by the side of the opening they lie on, each jaw's long axis is its principal
    direction, the hinge axis is normal to both long axes, and each jaw's angle is its long
    axis's angle from forward about the hinge axis (right-hand rule). Each jaw's points turned
-   back to angle 0 are its template; the template's side of the opening names the jaw.
+   back to angle 0 are its template; jaw a is the one at the smaller angle. Seen from one
+   side, the long axes put the hinge's roll off by degrees, and templates built about a
+   wrong hinge are tilted, so they fit frames at other angles worse: the roll is searched
+   (+-roll_search_deg) for the templates that fit all frames best (step 3).
 3. Tracking, outwards in time from the template frame: per frame, the hinge axis's roll about
    the shaft and the two jaw angles are fitted jointly (Gauss-Newton ICP, 3 unknowns) so that
    the templates, turned to those angles, cover the frame's jaw points; each observed point
    belongs to the template it lies nearest (so a jaw keeps its name over time) and matches
-   beyond trim_factor x the median are dropped. A jaw with fewer than min_points observed
-   points in a frame is not observed there (its angle is left to interpolation, not
-   invented); a frame whose fit leaves an RMS distance above max_fit_rms, or that sees no jaw,
+   beyond trim_factor x the median are dropped. A jaw matched by fewer than min_points
+   observed points, or whose fitted template is less than min_coverage covered by them, is
+   not observed in that frame (the fit is redone without it; its angle is left to
+   interpolation, not invented); a frame whose fit leaves an RMS distance above max_fit_rms, or that sees no jaw,
    is left out.
 4. Parts of the canonical tool: the tool Gaussians (and the template frame's observed points)
    behind the hinge of the template frame are the shaft, the others belong to the nearer jaw
@@ -60,9 +65,10 @@ class ArticulationOptions:
     surface_tolerance: float = 0.25
     """Observed points this near the fitted cylinder are the shaft's surface (also the scale
     of the fit's robust loss)."""
-    contiguity: float = 1.0
-    """Along its axis, the shaft's surface points leave no gap wider than this; surface-near
-    points beyond a gap (a jaw crossing the cylinder) are not shaft."""
+    bin_width: float = 1.0
+    """The shaft's surface points are counted along its axis in bins this wide; its surface is
+    the run of bins around the middle holding at least a quarter of the median count
+    (surface-near points beyond, e.g. of a jaw crossing the cylinder, are not shaft)."""
     radius_tolerance: float = 0.05
     """Frames whose fitted shaft radius is off the median radius by more than this fraction
     are left out (too little shaft in view to fit it)."""
@@ -269,12 +275,12 @@ def _fit_shaft(points: np.ndarray, direction: np.ndarray, options: ArticulationO
                          - cylinder.radius) <= options.surface_tolerance
         if surface.sum() < 3 * options.min_points:
             return None
-        low, high = _dense_run(along[surface], options.contiguity)
+        low, high = _dense_run(along[surface], options.bin_width)
         if refit:
-            within = (along >= low - options.contiguity) & (along <= high + options.contiguity)
+            within = (along >= low - options.bin_width) & (along <= high + options.bin_width)
             cylinder = fit_cylinder(points[within], axis, options.surface_tolerance)
-    vote = int((~surface & (along > high - options.contiguity)).sum()
-               - (~surface & (along < low + options.contiguity)).sum())
+    vote = int((~surface & (along > high - options.bin_width)).sum()
+               - (~surface & (along < low + options.bin_width)).sum())
     return cylinder, axis, low, high, vote
 
 
