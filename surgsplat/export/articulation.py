@@ -4,8 +4,9 @@ The run's tool field gives the canonical tool (its tool Gaussians) and one rigid
 frame. The jaws' own motion is estimated after training (`model.articulation`) from each
 training frame's observed tool points: its tool-mask pixels back-projected with its depth, mapped
 into the canonical tool frame by the inverse of the tool field's pose. Test frames are not used;
-their angles are interpolated (linearly in frame index) between the estimated frames, as are
-frames without enough tool in view.
+each jaw's angles are interpolated (linearly in frame index) between the frames that saw that
+jaw, as are frames without enough tool in view; such frames take the shaft motion of the
+estimated frames around them (interpolated).
 
 articulation.json (world frame = the scene's, lengths in the scene's depth unit, degrees):
     units, frame, method: what the numbers are
@@ -13,7 +14,7 @@ articulation.json (world frame = the scene's, lengths in the scene's depth unit,
     parts: number of tool Gaussians per part (shaft, jaw_a, jaw_b)
     geometry: shaft_radius, shaft_length, jaw_length, jaw_width (along the hinge),
               jaw_thickness, measured from the parts' Gaussians in the shaft frame
-    limits_deg: [[min, max] per jaw] over the estimated frames
+    limits_deg: [[min, max] per jaw] over the frames that saw the jaw
     frames: per frame index, shaft_to_world [4, 4] (origin at the hinge point, x forward,
             z hinge axis), hinge_point, hinge_axis, jaw_angles_deg [2], jaw_opening_deg,
             estimated (the frame's own observation gave its angles)
@@ -26,12 +27,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.data.phantom.kinematics import hinge_frame
 from surgsplat.errors import DataError, SurgsplatError
-from surgsplat.image.pinhole import backproject, inside_image, project_points
+from surgsplat.image.pinhole import backproject
 from surgsplat.model.articulation import (JAW_A, JAW_B, PART_NAMES, SHAFT, Articulation,
                                           ArticulationOptions, Observation,
                                           estimate_articulation)
@@ -46,9 +47,6 @@ MAX_OBSERVED_POINTS = 8000
 """At most this many observed tool points per frame (a seeded subsample)."""
 MIN_OPACITY = 0.05
 """Tool Gaussians less opaque than this are left out."""
-HIDDEN_MARGIN = 2.0
-"""A canonical point counts as visible in a frame unless it lies more than this (scene units)
-behind the frame's observed depth at its pixel."""
 
 
 def tool_field(run: TrainedRun) -> ToolField:
@@ -77,7 +75,7 @@ def canonical_tool(run: TrainedRun) -> np.ndarray:
     return _subsample(points, MAX_CANONICAL_POINTS, seed=0)
 
 
-def observe(run: TrainedRun, field: ToolField, canonical: np.ndarray) -> list[Observation]:
+def observe(run: TrainedRun, field: ToolField) -> list[Observation]:
     """The training frames' observed tool points in the canonical tool frame."""
     observations = []
     for frame in run.scene.train_frames:
@@ -90,16 +88,7 @@ def observe(run: TrainedRun, field: ToolField, canonical: np.ndarray) -> list[Ob
         world = backproject(frame.depth, frame.camera.K, mask, frame.camera.camera_to_world)
         world = _subsample(world.double().numpy(), MAX_OBSERVED_POINTS, seed=frame.index)
         pose = tool_pose(field, frame.index)
-        points = (world - pose[:3, 3]) @ pose[:3, :3]
-        posed = torch.from_numpy(canonical @ pose[:3, :3].T + pose[:3, 3])
-        pixel, z = project_points(posed, frame.camera.K, frame.camera.world_to_camera)
-        inside = inside_image(pixel, z, frame.camera.width, frame.camera.height)
-        visible = inside.clone()
-        column, row = pixel[inside, 0], pixel[inside, 1]
-        observed = frame.depth[row, column].double()
-        visible[inside] = frame.fov[row, column] & ((observed <= 0)
-                                                    | (z[inside] <= observed + HIDDEN_MARGIN))
-        observations.append(Observation(frame.index, points, visible.numpy()))
+        observations.append(Observation(frame.index, (world - pose[:3, 3]) @ pose[:3, :3]))
     return observations
 
 
@@ -109,7 +98,7 @@ def articulate(run: TrainedRun,
     field = tool_field(run)
     canonical = canonical_tool(run)
     try:
-        estimate = estimate_articulation(canonical, observe(run, field, canonical), options)
+        estimate = estimate_articulation(canonical, observe(run, field), options)
     except ValueError as err:
         raise SurgsplatError(f"{run.run_dir}: cannot articulate the tool: {err}") from None
     return describe(estimate, [tool_pose(field, i) for i in
@@ -122,9 +111,9 @@ def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict
     estimated = list(estimate.frames)
     records = []
     for index, pose in enumerate(poses):
-        nearest = int(np.abs(estimate.frames - index).argmin())
-        shaft_to_world = pose @ estimate.shaft_motion[nearest] @ frame
-        angles = [float(np.interp(index, estimate.frames, estimate.jaw_angles_deg[:, j]))
+        shaft_to_world = pose @ shaft_motion_at(estimate, index) @ frame
+        angles = [float(np.interp(index, estimate.frames[estimate.jaw_observed[:, j]],
+                                  estimate.jaw_angles_deg[estimate.jaw_observed[:, j], j]))
                   for j in range(2)]
         records.append({"index": index, "shaft_to_world": shaft_to_world.tolist(),
                         "hinge_point": shaft_to_world[:3, 3].tolist(),
@@ -135,9 +124,10 @@ def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict
     return {
         "units": {"length": unit, "angle": "deg"},
         "frame": "world (the scene's); canonical: the tool field's canonical tool",
-        "method": "tool Gaussians clustered by motion into shaft and two jaws against the "
-                  "training frames' back-projected tool pixels; hinge from the jaws' relative "
-                  "rotations; per-frame angles refitted about the hinge",
+        "method": "per training frame: a cylinder fitted to the back-projected tool pixels "
+                  "(shaft axis, its front end the hinge point); the hinge axis's roll and both "
+                  "jaw angles fitted jointly to the points ahead of it, with jaw templates from "
+                  "the frame where the jaws are most open, tracked through time",
         "canonical": {"hinge_point": estimate.hinge_point.tolist(),
                       "hinge_axis": estimate.axis.tolist(),
                       "forward": estimate.forward.tolist(),
@@ -145,10 +135,29 @@ def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict
         "parts": {name: int((estimate.labels == part).sum())
                   for part, name in enumerate(PART_NAMES)},
         "geometry": part_geometry(estimate, frame),
-        "limits_deg": [[float(estimate.jaw_angles_deg[:, j].min()),
-                        float(estimate.jaw_angles_deg[:, j].max())] for j in range(2)],
+        "limits_deg": [[float(estimate.jaw_angles_deg[estimate.jaw_observed[:, j], j].min()),
+                        float(estimate.jaw_angles_deg[estimate.jaw_observed[:, j], j].max())]
+                       for j in range(2)],
         "frames": records,
     }
+
+
+def shaft_motion_at(estimate: Articulation, index: int) -> np.ndarray:
+    """[4, 4] the shaft's motion (the residual of the tool field's pose) at frame `index`:
+    estimated there, else interpolated between the estimated frames around it (rotation
+    slerped, translation linear in frame index), the nearest one's outside them."""
+    frames = estimate.frames
+    after = int(np.searchsorted(frames, index))
+    if after < len(frames) and frames[after] == index:
+        return estimate.shaft_motion[after]
+    if after == 0 or after == len(frames):
+        return estimate.shaft_motion[min(after, len(frames) - 1)]
+    pair = estimate.shaft_motion[after - 1:after + 1]  # [2, 4, 4]
+    weight = (index - frames[after - 1]) / (frames[after] - frames[after - 1])
+    motion = np.eye(4)
+    motion[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(pair[:, :3, :3]))(weight).as_matrix()
+    motion[:3, 3] = (1 - weight) * pair[0, :3, 3] + weight * pair[1, :3, 3]
+    return motion
 
 
 def part_geometry(estimate: Articulation, frame: np.ndarray) -> dict:
