@@ -89,7 +89,6 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                     for (int row = s.row0; row <= s.row1; ++row) {
                         if (k >= row_last[row]) continue;
                         const float dy = py0 + row + 0.5f - s.my;
-                        if (!s.reaches(dy, px0)) continue;
                         touched = true;
                         const RowPart<N> q = s.template q<R0, N>(dy);
                         const RowPart<N> raw = s.alpha(q);

@@ -2,6 +2,7 @@
 // per-pixel Gaussian evaluation that forward and backward must compute identically.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -75,18 +76,40 @@ struct PixelBox {
     int32_t x0, y0, x1, y1;
 };
 
-// Whether row offset dy of a Gaussian reaches any pixel centre of the tile starting at px0:
-// {q(dx, dy) <= q_max} is the interval of columns mx - b dy / a +- sqrt(disc) / a, with
-// disc = dy^2 (b^2 - a c) + a q_max. A projected conic is positive definite (a > 0), so the
-// interval is compared with the tile scaled by a: no division in this per-row test.
-inline bool row_touches_tile(float mx, float a, float b, float c, float q_max, float dy,
-                             int px0) {
-    const float disc = dy * dy * (b * b - a * c) + a * q_max;
-    if (!(disc > 0.0f)) return false;
+// Narrows the tile rows [row0, row1] to those where a Gaussian can reach alpha >= kAlphaMin at
+// a pixel centre of the columns of the tile starting at px0 (tile rows start at py0); false
+// when it reaches none. With u = x - mx, v = y - my the Gaussian's reach is the ellipse
+// {a u^2 + 2 b u v + c v^2 <= q_max}; cut to the strip of the tile's columns it stays convex, so
+// the rows it reaches are one run, from the lowest to the highest v on the cut. The ellipse's
+// upper boundary v(u) = (-b u + sqrt(c q_max - det u^2)) / c is concave with its maximum at the
+// top point u = -b v_top / a (v_top = sqrt(a q_max / det)): its highest v on the cut is at the u
+// of the cut nearest that point; the lowest v likewise, at the bottom point. Computed once per
+// Gaussian and tile, this replaces a test (a square root and a branch) per row. Rounding
+// margins keep the run a superset: the lanes' own alpha test decides what contributes.
+inline bool narrow_to_tile_rows(float mx, float my, float a, float b, float c, float q_max,
+                                int px0, int py0, int& row0, int& row1) {
+    const float det = a * c - b * b;
+    if (!(det > 0.0f) || !(q_max > 0.0f)) return false;
     constexpr float kMargin = 0.01f;  // pixels, against rounding
-    const float centre = a * mx - b * dy, half = std::sqrt(disc);
-    return centre + half >= a * (px0 + 0.5f - kMargin) &&
-           centre - half <= a * (px0 + kTile - 0.5f + kMargin);
+    const float half_width = std::sqrt(c * q_max / det);
+    const float u0 = std::max(px0 + 0.5f - kMargin - mx, -half_width);
+    const float u1 = std::min(px0 + kTile - 0.5f + kMargin - mx, half_width);
+    if (!(u0 <= u1)) return false;
+    const float u_top = -b * std::sqrt(a * q_max / det) / a;
+    const auto boundary_root = [&](float u) {
+        return std::sqrt(std::max(c * q_max - det * u * u, 0.0f));
+    };
+    const float u_high = std::min(std::max(u_top, u0), u1);
+    const float u_low = std::min(std::max(-u_top, u0), u1);
+    const float v_high = (-b * u_high + boundary_root(u_high)) / c + kMargin;
+    const float v_low = (-b * u_low - boundary_root(u_low)) / c - kMargin;
+    // row r holds the pixel centres v = py0 + r + 0.5 - my; the bounds are clamped to a
+    // tile's rows before conversion
+    const float first = std::ceil(v_low + my - py0 - 0.5f);
+    const float last = std::floor(v_high + my - py0 - 0.5f);
+    row0 = std::max(row0, static_cast<int>(std::min(std::max(first, -1.0f), float(kTile))));
+    row1 = std::min(row1, static_cast<int>(std::min(std::max(last, -1.0f), float(kTile))));
+    return row0 <= row1;
 }
 
 // Tile lists: Gaussians overlapping tile t are ids[offsets[t] .. offsets[t+1]), nearest first.
@@ -102,9 +125,8 @@ struct TileBins {
 struct SplatInTile {
     float mx, my, a, b, c, opacity, q_max;
     RowF dx, qa, qb;   // per lane: dx, a dx^2 and 2 b dx, so that q = qa + dy (qb + c dy)
-    int row0, row1;    // the tile rows its alpha box covers
+    int row0, row1;    // the tile rows it reaches (empty when row1 < row0)
     int lane0, lane1;  // the tile columns (lanes) its alpha box covers
-    bool spills;       // its box spills over the tile's sides: some rows may miss the tile
 
     SplatInTile(const float* means2d, const float* conics, const float* opacities,
                 const TileBins& bins, int32_t g, int px0, int py0, RowF lanes)
@@ -118,12 +140,10 @@ struct SplatInTile {
         row1 = box.y1 - py0 < kTile - 1 ? box.y1 - py0 : kTile - 1;
         lane0 = box.x0 - px0 > 0 ? box.x0 - px0 : 0;
         lane1 = box.x1 - px0 < kTile - 1 ? box.x1 - px0 : kTile - 1;
-        spills = box.x0 < px0 || box.x1 >= px0 + kTile;
-    }
-
-    // Whether tile row offset dy can reach alpha >= kAlphaMin inside the tile.
-    bool reaches(float dy, int px0) const {
-        return !spills || row_touches_tile(mx, a, b, c, q_max, dy, px0);
+        // a box spilling over the tile's sides may miss the tile in some of its rows
+        const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
+        if (spills && !narrow_to_tile_rows(mx, my, a, b, c, q_max, px0, py0, row0, row1))
+            row1 = row0 - 1;
     }
     // q and alpha in the registers R0 .. R0 + N - 1 of tile row offset dy.
     template <int R0, int N>

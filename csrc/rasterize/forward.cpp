@@ -1,5 +1,5 @@
 // Forward compositing: parallel over tiles; inside a tile, Gaussians front to back, each over
-// the tile rows its alpha box touches, one 16-lane vector per row (only the registers of it that
+// the tile rows it reaches, one 16-lane vector per row (only the registers of it that
 // the box reaches).
 #include <algorithm>
 
@@ -46,7 +46,6 @@ void rasterize_forward(const float* means2d, const float* conics, const float* o
                     for (int row = s.row0; row <= s.row1; ++row) {
                         if (!row_live[row]) continue;
                         const float dy = py0 + row + 0.5f - s.my;
-                        if (!s.reaches(dy, px0)) continue;
                         const RowPart<N> q = s.template q<R0, N>(dy);
                         const RowPart<N> alpha = s.alpha(q);
                         const RowPart<N> t = part<R0, N>(trans[row]);

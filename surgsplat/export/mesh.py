@@ -2,7 +2,9 @@
 
 Two routes, chosen by the method:
 - a method with a signed distance field (a component offering `signed_distance`, such as
-  Endo-GSG's `SDFField`): marching cubes (scikit-image) of the canonical SDF once, the vertices
+  Endo-GSG's `SDFField`): marching cubes (scikit-image) of the canonical SDF once, each vertex
+  then moved along its normal onto the canonical tissue Gaussians near it (`fit_to_points`: the
+  SDF's zero level follows the Gaussians on average but is bumpy between them), the vertices
   carried to the frame's time by the Gaussians' own motion (each vertex moves with the
   inverse-distance-weighted displacement of its nearest canonical Gaussians, which works for any
   deformation component), then cropped to what the frame's camera sees: faces inside the image and
@@ -34,6 +36,7 @@ from surgsplat.fields.level_set import marching_cubes, mesh_library
 from surgsplat.image.pinhole import backproject_camera, inside_image, project_points
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import SplatModel, render_frame
+from surgsplat.model.physics import tissue_members
 from surgsplat.render.render import RenderOutput
 
 MESH_FORMATS = ("ply", "obj", "glb")
@@ -50,6 +53,10 @@ class MeshOptions:
     the rendered depth."""
     neighbours: int = 8
     """SDF route: canonical Gaussians whose displacement carries each vertex."""
+    fit_radius: float = 2.0
+    """SDF route: each canonical vertex moves along its normal to the weighted mean normal
+    offset of the canonical tissue Gaussians within this many marching-cubes cells (weights:
+    rendered opacity times a Gaussian kernel of the distance); 0 keeps the SDF's zero level."""
     stride: int = 2
     """Depth route: pixels between grid vertices."""
     edge_factor: float = 4.0
@@ -113,9 +120,26 @@ class MeshExtractor:
     def canonical_mesh(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Marching cubes of the canonical SDF: vertices [V, 3], faces [F, 3], cell size."""
         if self._canonical is None:
-            self._canonical = marching_cubes(self.field.signed_distance, self.field.box,
-                                             self.options.resolution)
+            vertices, faces, cell = marching_cubes(self.field.signed_distance, self.field.box,
+                                                   self.options.resolution)
+            if self.options.fit_radius > 0 and len(faces):
+                centres, opacities = self._tissue_gaussians()
+                vertices = fit_to_points(vertices, vertex_normals(vertices, faces), centres,
+                                         opacities, self.options.fit_radius * cell)
+            self._canonical = vertices, faces, cell
         return self._canonical
+
+    def _tissue_gaussians(self) -> tuple[np.ndarray, np.ndarray]:
+        """Canonical centres [N, 3] and rendered opacities [N] of the tissue Gaussians (all
+        Gaussians unless a tool field marks some as tool)."""
+        params = self.model.gaussians.params
+        opacity = torch.sigmoid(params["opacity_logits"].detach())
+        factor = self.model.opacity_factor
+        if factor is not None:
+            opacity = opacity * factor
+        tissue = tissue_members(params)
+        keep = slice(None) if tissue is None else tissue
+        return params["means"].detach()[keep].numpy(), opacity[keep].numpy()
 
     def _carry(self, vertices: np.ndarray, when: FrameTime) -> np.ndarray:
         """Canonical vertices [V, 3] -> their positions at `when`."""
@@ -137,6 +161,39 @@ def anchor_weights(points: np.ndarray, anchors: np.ndarray,
     weights = 1.0 / np.maximum(distance, 1e-9)
     return index, weights / weights.sum(axis=1, keepdims=True)
 
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """[V, 3] unit normals: the area-weighted sum of the normals of each vertex's faces
+    (zero for an unused vertex)."""
+    corners = vertices[faces]  # [F, 3, 3]
+    face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals = np.zeros_like(vertices)
+    for corner in range(3):
+        np.add.at(normals, faces[:, corner], face_normals)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return normals / np.maximum(length, 1e-12)
+
+
+def fit_to_points(vertices: np.ndarray, normals: np.ndarray, points: np.ndarray,
+                  weights: np.ndarray, radius: float, neighbours: int = 16) -> np.ndarray:
+    """Vertices [V, 3] moved along their unit normals [V, 3] by the weighted mean of the normal
+    offsets n . (p - v) of the points [P, 3] within `radius` (at most `neighbours` nearest),
+    each weighted by its weight [P] times exp(-2 d^2 / radius^2): one moving-least-squares
+    projection onto the points' surface. Vertices with no point in reach stay."""
+    if len(points) == 0:
+        return vertices
+    k = min(neighbours, len(points))
+    distance, index = cKDTree(points).query(vertices, k=k, distance_upper_bound=radius)
+    distance, index = distance.reshape(len(vertices), k), index.reshape(len(vertices), k)
+    reached = np.isfinite(distance)
+    index = np.where(reached, index, 0)
+    kernel = np.where(reached, np.exp(-2.0 * (np.where(reached, distance, 0.0) / radius) ** 2),
+                      0.0) * weights[index]
+    offsets = np.einsum("vkc,vc->vk", points[index] - vertices[:, None, :], normals)
+    total = kernel.sum(axis=1)
+    shift = (kernel * offsets).sum(axis=1) / np.maximum(total, 1e-12)
+    return vertices + np.where(total > 1e-9, shift, 0.0)[:, None] * normals
 
 
 def faces_on_rendered_surface(vertices: np.ndarray, faces: np.ndarray, output: RenderOutput,

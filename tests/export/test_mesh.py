@@ -8,7 +8,7 @@ import torch
 
 from surgsplat.data.scene import Camera, Frame, load_scene
 from surgsplat.export.mesh import (MeshExtractor, MeshOptions, anchor_weights, coverage,
-                                   depth_mesh)
+                                   depth_mesh, fit_to_points, vertex_normals)
 from surgsplat.fields.level_set import marching_cubes
 from surgsplat.methods.registry import method_config
 from surgsplat.model.dynamic import SplatModel
@@ -34,6 +34,36 @@ def test_anchor_weights_pick_the_nearest_anchors_by_inverse_distance():
     index, weights = anchor_weights(np.array([[0.25, 0, 0]]), anchors, neighbours=2)
     assert sorted(index[0]) == [0, 1]
     np.testing.assert_allclose(weights[0][np.argsort(index[0])], [0.75, 0.25], atol=1e-12)
+
+
+def test_vertices_fitted_to_points_move_along_their_normals_onto_them():
+    """A bumpy sphere (the zero level of an SDF that is off by up to 0.15 between samples)
+    fitted to points on the true sphere lands on it to 0.01; vertices without points in reach
+    stay; the normals of a sphere mesh are radial (to 1e-3)."""
+    box = torch.tensor([[-3.0, -3.0, -3.0], [3.0, 3.0, 3.0]])
+    radius = 2.03  # off the grid's samples: no zero-area faces
+
+    def bumpy(p):
+        return p.norm(dim=1) - radius - 0.15 * torch.sin(5 * p[:, 0]) * torch.cos(4 * p[:, 1])
+
+    smooth, smooth_faces, _ = marching_cubes(lambda p: p.norm(dim=1) - radius, box, 60)
+    normals = vertex_normals(smooth, smooth_faces)
+    radial = smooth / np.linalg.norm(smooth, axis=1, keepdims=True)
+    assert np.abs(np.linalg.norm(normals, axis=1) - 1).max() < 1e-6
+    assert np.abs(np.abs((normals * radial).sum(axis=1)) - 1).max() < 1e-3
+    vertices, faces, cell = marching_cubes(bumpy, box, resolution=60)
+    normals = vertex_normals(vertices, faces)
+    generator = np.random.default_rng(0)
+    directions = generator.normal(size=(40000, 3))
+    points = radius * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    points = points[points[:, 2] > 0]  # the upper half only
+    before = np.abs(np.linalg.norm(vertices, axis=1) - radius)
+    fitted = fit_to_points(vertices, normals, points, np.ones(len(points)), 4 * cell)
+    after = np.abs(np.linalg.norm(fitted, axis=1) - radius)
+    upper, lower = vertices[:, 2] > 0.5, vertices[:, 2] < -0.5
+    assert before[upper].max() > 0.1 and np.median(after[upper]) < 0.01
+    assert after[upper].max() < 0.05
+    np.testing.assert_array_equal(fitted[lower], vertices[lower])
 
 
 def step_frame(width: int = 40, height: int = 30):
