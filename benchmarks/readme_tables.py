@@ -1,7 +1,7 @@
 """Writes the README's benchmark tables from the benchmark results: every
 benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of README.md, for the
-benchmarks bench_render, bench_threads, bench_outputs, bench_auto_masks,
+benchmarks bench_render, bench_train, bench_threads, bench_outputs, bench_auto_masks,
 bench_shading_depth, bench_batch, bench_long_clip and bench_articulation, and for every suite of bench_methods
 whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
 hand.
@@ -231,7 +231,39 @@ def articulation_table(report: dict) -> str:
     return "\n".join(lines)
 
 
-RENDERERS = {"bench_render": render_table, "bench_threads": render_threads_table,
+def train_table(report: dict) -> str:
+    """Markdown for one bench_train report: one row per training run, then issue 10's targets
+    beside what was measured."""
+    system = report["system"]
+    lines = [
+        f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}), "
+        f"{report['date'][:10]}, `{report['command']}`:",
+        "",
+        "| scene | method | iterations | train s | s/iter | s/iter, last tenth | s to 35 dB "
+        "| s to 39 dB | test psnr_tissue | render FPS | Gaussians | peak RSS MB | wall s "
+        "| probe evals/s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["rows"]:
+        lines.append(
+            f"| {row['scene']} | {row['method']} | {row['iterations']} "
+            f"| {cell(row, 'train_seconds', '.0f')} | {cell(row, 'seconds_per_iter', '.3f')} "
+            f"| {cell(row, 'last_tenth_seconds_per_iter', '.3f')} "
+            f"| {cell(row, 'seconds_to_35db', '.0f')} | {cell(row, 'seconds_to_39db', '.0f')} "
+            f"| {cell(row, 'test_psnr_tissue', '.2f')} | {cell(row, 'render_fps', '.1f')} "
+            f"| {row['num_gaussians']} | {cell(row, 'peak_rss_mb', '.0f')} "
+            f"| {cell(row, 'wall_seconds', '.0f')} | {cell(row, 'probe_evals_per_s_before', '.2e')} |")
+    lines += ["", "| target | measured | goal |", "|---|---|---|"]
+    for key, goal in report["targets"].items():
+        value = report["measured"].get(key)
+        shown = "not reached" if value is None else f"{value:.3g}"
+        bound = ">=" if key.endswith("fps") else "<="
+        lines.append(f"| {key.replace('_', ' ')} | {shown} | {bound} {goal:g} |")
+    return "\n".join(lines)
+
+
+RENDERERS = {"bench_render": render_table, "bench_train": train_table,
+             "bench_threads": render_threads_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
              "bench_shading_depth": shading_depth_table, "bench_batch": methods_table,
              "bench_long_clip": long_clip_table, "bench_articulation": articulation_table}

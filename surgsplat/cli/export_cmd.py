@@ -64,6 +64,10 @@ def export_command(
                        "the rendered depth triangulated for the others.")] = False,
     mesh_resolution: Annotated[int, typer.Option(
         help="Marching-cubes cells along the SDF box's longest side.")] = MeshOptions.resolution,
+    mesh_fit_radius: Annotated[float, typer.Option(
+        help="SDF meshes: each vertex moves along its normal onto the canonical tissue "
+             "Gaussians within this many marching-cubes cells; 0 keeps the SDF's zero "
+             "level.")] = MeshOptions.fit_radius,
     mesh_format: Annotated[str, typer.Option(
         "--format", help=f"Mesh file format: {', '.join(MESH_FORMATS)}.")] = "ply",
     sim: Annotated[Path | None, typer.Option(
@@ -86,6 +90,9 @@ def export_command(
                              f"{mesh_format!r}")
     if mesh_resolution < 8:
         raise SurgsplatError(f"--mesh-resolution must be at least 8, got {mesh_resolution}")
+    if not mesh_fit_radius >= 0:
+        raise SurgsplatError(f"--mesh-fit-radius must be >= 0, got {mesh_fit_radius}")
+    options = MeshOptions(resolution=mesh_resolution, fit_radius=mesh_fit_radius)
     console = Console()
     with run_lock(run_dir):
         run = load_trained_run(run_dir, data)
@@ -100,8 +107,7 @@ def export_command(
         if mesh:
             folder = out or Path(run_dir) / "export" / "mesh"
             background = torch.tensor(run.config.train.background, dtype=torch.float32)
-            extractor = MeshExtractor(run.model, MeshOptions(resolution=mesh_resolution),
-                                      background)
+            extractor = MeshExtractor(run.model, options, background)
             faces = 0
             for stem, when in moments:
                 frame_mesh = extractor.frame_mesh(run.scene.frames[when.index], when)
@@ -110,10 +116,10 @@ def export_command(
             console.print(f"{len(moments)} mesh file(s) ({extractor.route} route, "
                           f"{faces // max(len(moments), 1)} faces on average) in {folder}")
         if sim:
-            export_sim(run, sim, frame, mesh_resolution, console)
+            export_sim(run, sim, frame, options, console)
 
 
-def export_sim(run: TrainedRun, folder: Path, index: int, mesh_resolution: int,
+def export_sim(run: TrainedRun, folder: Path, index: int, options: MeshOptions,
                console: Console) -> None:
     """Write frame `index` of `run` as a simulation scene into `folder`."""
     count = len(run.scene.frames)
@@ -130,7 +136,7 @@ def export_sim(run: TrainedRun, folder: Path, index: int, mesh_resolution: int,
                              "delete it and run `surgsplat articulate RUN`")
     chosen = run.scene.frames[index]
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
-    extractor = MeshExtractor(run.model, MeshOptions(resolution=mesh_resolution), background)
+    extractor = MeshExtractor(run.model, options, background)
     tissue_only = FrameTime(index, chosen.time, tissue_only=True)
     with torch.no_grad():
         tissue = extractor.frame_mesh(chosen, tissue_only)

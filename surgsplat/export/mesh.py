@@ -53,7 +53,7 @@ class MeshOptions:
     the rendered depth."""
     neighbours: int = 8
     """SDF route: canonical Gaussians whose displacement carries each vertex."""
-    fit_radius: float = 2.0
+    fit_radius: float = 3.0
     """SDF route: each canonical vertex moves along its normal to the weighted mean normal
     offset of the canonical tissue Gaussians within this many marching-cubes cells (weights:
     rendered opacity times a Gaussian kernel of the distance); 0 keeps the SDF's zero level."""
@@ -134,7 +134,7 @@ class MeshExtractor:
         Gaussians unless a tool field marks some as tool)."""
         params = self.model.gaussians.params
         opacity = torch.sigmoid(params["opacity_logits"].detach())
-        factor = self.model.opacity_factor
+        factor = self.model.opacity_factor()
         if factor is not None:
             opacity = opacity * factor
         tissue = tissue_members(params)

@@ -137,4 +137,6 @@ def test_cli_writes_meshes_that_trimesh_reloads(trained, cli, one_error_line, tm
     assert "--format" in one_error_line(cli("export", run, "--mesh", "--format", "stl"))
     assert "--mesh-resolution" in one_error_line(cli("export", run, "--mesh",
                                                      "--mesh-resolution", "1"))
+    assert "--mesh-fit-radius" in one_error_line(cli("export", run, "--mesh",
+                                                     "--mesh-fit-radius", "-1"))
     assert "--frames" in one_error_line(cli("export", run, "--mesh", "--frames", ""))
