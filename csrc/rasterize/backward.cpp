@@ -20,21 +20,22 @@ enum Slot : int { kMx, kMy, kA, kB, kC, kOpacity, kAbsX, kAbsY, kFeatures };
 
 }  // namespace
 
-void rasterize_backward(const float* means2d, const float* conics, const float* opacities,
-                        const float* features, int64_t n, int64_t channels,
-                        const TileBins& bins, int width, int height,
+void rasterize_backward(const TileBins& bins, int width, int height,
                         const float* transmittance, const int32_t* last_entry,
                         const float* grad_image, const float* grad_alpha,
                         float* grad_means2d, float* grad_conics, float* grad_opacities,
                         float* grad_features, float* abs_grad_means2d) {
     const int tiles = bins.tiles_x * bins.tiles_y;
+    const int64_t n = bins.num_gaussians, channels = bins.channels;
+    const int64_t drawn = static_cast<int64_t>(bins.splats.size());
     const int64_t stride = kFeatures + channels;
     const int threads = omp_get_max_threads();
     const RowF lanes = lane_offsets();
-    std::vector<float> partial(static_cast<size_t>(threads) * n * stride, 0.0f);
+    // per thread, one gradient slot per drawn Gaussian, in depth order (by rank)
+    std::vector<float> partial(static_cast<size_t>(threads) * drawn * stride, 0.0f);
 #pragma omp parallel
     {
-        float* mine = partial.data() + static_cast<size_t>(omp_get_thread_num()) * n * stride;
+        float* mine = partial.data() + static_cast<size_t>(omp_get_thread_num()) * drawn * stride;
         std::vector<RowF> behind(channels * kTile), grad_in(channels * kTile);  // [channel][row]
         std::vector<RowF> grad_f(channels);
         RowF trans[kTile], behind_alpha[kTile], grad_a[kTile];
@@ -69,16 +70,16 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
             // no gradient: the walk back to front starts at the tile's last contributor.
             const int32_t tile_last = *std::max_element(row_last, row_last + kTile);
             for (int32_t k = tile_last - 1; k >= start; --k) {
-                const int32_t g = bins.ids[k];
+                const int32_t rank = bins.ranks[k];
                 if (k - kPrefetchAhead >= start) {
-                    const int32_t ahead = bins.ids[k - kPrefetchAhead];
-                    prefetch_splat(means2d, conics, opacities, features, channels, bins, ahead);
+                    const int32_t ahead = bins.ranks[k - kPrefetchAhead];
+                    prefetch_splat(bins, ahead);
                     __builtin_prefetch(mine + ahead * stride, 1);  // both lines a slot may span
                     __builtin_prefetch(mine + (ahead + 1) * stride - 1, 1);
                 }
-                const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
+                const SplatInTile s(bins.splats[rank], px0, py0, lanes);
                 const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;
-                const float* feature = features + g * channels;
+                const float* feature = bins.features.data() + rank * channels;
                 s.with_reached_registers([&](auto first_register, auto registers) {
                     constexpr int R0 = decltype(first_register)::value;
                     constexpr int N = decltype(registers)::value;
@@ -133,7 +134,7 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                         abs_y += select(d_my < 0.0f, -d_my, d_my);
                     }
                     if (!touched) return;
-                    float* slot = mine + g * stride;
+                    float* slot = mine + rank * stride;
                     slot[kMx] += lane_sum(g_mx);
                     slot[kMy] += lane_sum(g_my);
                     slot[kA] += lane_sum(g_a);
@@ -147,11 +148,20 @@ void rasterize_backward(const float* means2d, const float* conics, const float* 
                 });
             }
         }
+        // Gaussians that are not drawn have no gradient (grad_features comes zeroed)
 #pragma omp for schedule(static)
         for (int64_t g = 0; g < n; ++g) {
+            grad_means2d[2 * g] = grad_means2d[2 * g + 1] = 0.0f;
+            grad_conics[3 * g] = grad_conics[3 * g + 1] = grad_conics[3 * g + 2] = 0.0f;
+            grad_opacities[g] = 0.0f;
+            abs_grad_means2d[2 * g] = abs_grad_means2d[2 * g + 1] = 0.0f;
+        }
+#pragma omp for schedule(static)
+        for (int64_t rank = 0; rank < drawn; ++rank) {
+            const int64_t g = bins.splats[rank].id;
             float sums[kFeatures] = {};
             for (int th = 0; th < threads; ++th) {
-                const float* s = partial.data() + (static_cast<size_t>(th) * n + g) * stride;
+                const float* s = partial.data() + (static_cast<size_t>(th) * drawn + rank) * stride;
                 for (int i = 0; i < kFeatures; ++i) sums[i] += s[i];
                 for (int64_t ch = 0; ch < channels; ++ch)
                     grad_features[g * channels + ch] += s[kFeatures + ch];

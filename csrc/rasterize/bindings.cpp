@@ -36,10 +36,10 @@ TileBins forward(In<float> means2d, In<float> conics, In<float> opacities, In<fl
     expect_size(last_entry, pixels, "last_entry");
     nb::gil_scoped_release unlocked;
     TileBins bins = surgsplat::bin_gaussians(means2d.data(), conics.data(), opacities.data(),
-                                             depths.data(), radii.data(), s.n, width, height);
-    surgsplat::rasterize_forward(means2d.data(), conics.data(), opacities.data(),
-                                 features.data(), s.channels, bins, width, height, image.data(),
-                                 transmittance.data(), last_entry.data());
+                                             features.data(), s.channels, depths.data(),
+                                             radii.data(), s.n, width, height);
+    surgsplat::rasterize_forward(bins, width, height, image.data(), transmittance.data(),
+                                 last_entry.data());
     return bins;
 }
 
@@ -50,7 +50,9 @@ void backward(const TileBins& bins, In<float> means2d, In<float> conics, In<floa
               Out<float> grad_features, Out<float> abs_grad_means2d) {
     const Screen s = check_inputs(means2d, conics, opacities, features);
     const size_t pixels = static_cast<size_t>(width) * height;
-    if (bins.boxes.size() != s.n) throw std::invalid_argument("bins were made for another scene");
+    if (static_cast<size_t>(bins.num_gaussians) != s.n ||
+        static_cast<size_t>(bins.channels) != s.channels)
+        throw std::invalid_argument("bins were made for another scene");
     expect_size(transmittance, pixels, "transmittance");
     expect_size(last_entry, pixels, "last_entry");
     expect_size(grad_image, pixels * s.channels, "grad_image");
@@ -62,8 +64,7 @@ void backward(const TileBins& bins, In<float> means2d, In<float> conics, In<floa
     expect_size(abs_grad_means2d, 2 * s.n, "abs_grad_means2d");
     nb::gil_scoped_release unlocked;
     surgsplat::rasterize_backward(
-        means2d.data(), conics.data(), opacities.data(), features.data(), s.n, s.channels, bins,
-        width, height, transmittance.data(), last_entry.data(), grad_image.data(),
+        bins, width, height, transmittance.data(), last_entry.data(), grad_image.data(),
         grad_alpha.data(), grad_means2d.data(), grad_conics.data(), grad_opacities.data(),
         grad_features.data(), abs_grad_means2d.data());
 }
@@ -72,7 +73,7 @@ void backward(const TileBins& bins, In<float> means2d, In<float> conics, In<floa
 
 void bind_rasterize(nb::module_& m) {
     nb::class_<TileBins>(m, "TileBins", "Depth-sorted Gaussian lists of the 16x16 tiles.")
-        .def_prop_ro("num_overlaps", [](const TileBins& b) { return b.ids.size(); },
+        .def_prop_ro("num_overlaps", [](const TileBins& b) { return b.ranks.size(); },
                      "Total (tile, Gaussian) pairs.")
         .def_prop_ro("tiles", [](const TileBins& b) { return b.tiles_x * b.tiles_y; });
     m.def("rasterize_forward", &forward, "Bin, sort and composite; returns the tile bins.");

@@ -1,5 +1,6 @@
 // Tile binning: each drawn Gaussian goes to every 16x16 tile its alpha >= 1/255 box touches;
-// a global radix sort by depth first makes every tile list front-to-back without per-tile sorts.
+// a global radix sort by depth first makes every tile list front-to-back without per-tile sorts,
+// and the drawn Gaussians' data is copied in that order (common.h, TileBins).
 #include <algorithm>
 #include <array>
 
@@ -57,41 +58,57 @@ std::vector<int32_t> sort_by_depth(const std::vector<int32_t>& items, const floa
 }  // namespace
 
 TileBins bin_gaussians(const float* means2d, const float* conics, const float* opacities,
-                       const float* depths, const int32_t* radii, int64_t n, int width,
-                       int height) {
+                       const float* features, int64_t channels, const float* depths,
+                       const int32_t* radii, int64_t n, int width, int height) {
     TileBins bins;
     bins.tiles_x = (width + kTile - 1) / kTile;
     bins.tiles_y = (height + kTile - 1) / kTile;
+    bins.num_gaussians = n;
+    bins.channels = channels;
     const int tiles = bins.tiles_x * bins.tiles_y;
-    bins.boxes.assign(n, PixelBox{0, 0, -1, -1});
-    bins.q_max.assign(n, 0.0f);
+    std::vector<PixelBox> boxes(n, PixelBox{0, 0, -1, -1});
+    std::vector<float> q_max(n, 0.0f);
 #pragma omp parallel for schedule(static)
     for (int64_t i = 0; i < n; ++i) {
         if (radii[i] <= 0) continue;
-        bins.q_max[i] = 2.0f * std::log(opacities[i] / kAlphaMin);
-        bins.boxes[i] = alpha_box(means2d + 2 * i, conics + 3 * i, bins.q_max[i], width, height);
+        q_max[i] = 2.0f * std::log(opacities[i] / kAlphaMin);
+        boxes[i] = alpha_box(means2d + 2 * i, conics + 3 * i, q_max[i], width, height);
     }
     std::vector<int32_t> drawn;
     drawn.reserve(n);
     for (int64_t i = 0; i < n; ++i)
-        if (bins.boxes[i].x1 >= bins.boxes[i].x0) drawn.push_back(static_cast<int32_t>(i));
+        if (boxes[i].x1 >= boxes[i].x0) drawn.push_back(static_cast<int32_t>(i));
     const std::vector<int32_t> order = sort_by_depth(drawn, depths);
 
+    // the drawn Gaussians' data, copied in depth order
+    const int64_t count = static_cast<int64_t>(order.size());
+    bins.splats.resize(count);
+    bins.features.resize(count * channels);
+#pragma omp parallel for schedule(static)
+    for (int64_t rank = 0; rank < count; ++rank) {
+        const int32_t g = order[rank];
+        bins.splats[rank] = SplatRecord{means2d[2 * g], means2d[2 * g + 1], conics[3 * g],
+                                        conics[3 * g + 1], conics[3 * g + 2], opacities[g],
+                                        q_max[g], boxes[g], g};
+        std::copy(features + g * channels, features + (g + 1) * channels,
+                  bins.features.begin() + rank * channels);
+    }
+
     bins.offsets.assign(tiles + 1, 0);
-    for (int32_t g : order) {
-        const PixelBox& b = bins.boxes[g];
+    for (const SplatRecord& splat : bins.splats) {
+        const PixelBox& b = splat.box;
         for (int ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
             for (int tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx)
                 ++bins.offsets[ty * bins.tiles_x + tx + 1];
     }
     for (int t = 0; t < tiles; ++t) bins.offsets[t + 1] += bins.offsets[t];
-    bins.ids.resize(bins.offsets[tiles]);
+    bins.ranks.resize(bins.offsets[tiles]);
     std::vector<int32_t> cursor(bins.offsets.begin(), bins.offsets.end() - 1);
-    for (int32_t g : order) {
-        const PixelBox& b = bins.boxes[g];
+    for (int32_t rank = 0; rank < count; ++rank) {
+        const PixelBox& b = bins.splats[rank].box;
         for (int ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
             for (int tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx)
-                bins.ids[cursor[ty * bins.tiles_x + tx]++] = g;
+                bins.ranks[cursor[ty * bins.tiles_x + tx]++] = rank;
     }
     return bins;
 }

@@ -64,13 +64,6 @@ SURGSPLAT_INLINE RowPart<N> row_exp(RowPart<N> x) {
     return p * bits_as_float(exponent);
 }
 
-// Screen-space Gaussian as the kernels read it.
-struct Splat {
-    float mx, my;     // mean in pixels
-    float a, b, c;    // conic: q = a dx^2 + 2 b dx dy + c dy^2
-    float opacity;
-};
-
 // Inclusive pixel box outside which a Gaussian's alpha is below kAlphaMin.
 struct PixelBox {
     int32_t x0, y0, x1, y1;
@@ -112,13 +105,29 @@ inline bool narrow_to_tile_rows(float mx, float my, float a, float b, float c, f
     return row0 <= row1;
 }
 
-// Tile lists: Gaussians overlapping tile t are ids[offsets[t] .. offsets[t+1]), nearest first.
+// One drawn Gaussian as the compositing passes read it.
+struct SplatRecord {
+    float mx, my;     // mean in pixels
+    float a, b, c;    // conic: q = a dx^2 + 2 b dx dy + c dy^2
+    float opacity;
+    float q_max;      // alpha >= kAlphaMin where q <= q_max = 2 ln(opacity / kAlphaMin)
+    PixelBox box;     // inclusive pixel box of alpha >= kAlphaMin
+    int32_t id;       // the Gaussian's index in the inputs
+};
+
+// Tile lists: tile t composites the drawn Gaussians of ranks[offsets[t] .. offsets[t+1]),
+// nearest first. A rank is a position in the depth order, and indexes copies of the drawn
+// Gaussians' data made in that order (splats, features): every tile list is increasing in rank,
+// so the passes read their Gaussians' data in memory order instead of gathering it from the
+// inputs' arbitrary order (measured: 8-15% of the forward and backward time).
 struct TileBins {
     int tiles_x = 0, tiles_y = 0;
-    std::vector<int32_t> offsets;   // [tiles + 1]
-    std::vector<int32_t> ids;       // [total overlaps]
-    std::vector<PixelBox> boxes;    // [N], x1 < x0 when the Gaussian is not drawn
-    std::vector<float> q_max;       // [N] alpha >= kAlphaMin where q <= q_max = 2 ln(o / kAlphaMin)
+    int64_t num_gaussians = 0;          // N, Gaussians in the inputs
+    int64_t channels = 0;               // C, feature channels
+    std::vector<int32_t> offsets;       // [tiles + 1]
+    std::vector<int32_t> ranks;         // [total overlaps]
+    std::vector<SplatRecord> splats;    // [drawn], nearest first
+    std::vector<float> features;        // [drawn, C], nearest first
 };
 
 // One Gaussian as seen from one tile: what both compositing passes evaluate row by row.
@@ -128,11 +137,10 @@ struct SplatInTile {
     int row0, row1;    // the tile rows it reaches (empty when row1 < row0)
     int lane0, lane1;  // the tile columns (lanes) its alpha box covers
 
-    SplatInTile(const float* means2d, const float* conics, const float* opacities,
-                const TileBins& bins, int32_t g, int px0, int py0, RowF lanes)
-        : mx(means2d[2 * g]), my(means2d[2 * g + 1]), a(conics[3 * g]), b(conics[3 * g + 1]),
-          c(conics[3 * g + 2]), opacity(opacities[g]), q_max(bins.q_max[g]) {
-        const PixelBox& box = bins.boxes[g];
+    SplatInTile(const SplatRecord& splat, int px0, int py0, RowF lanes)
+        : mx(splat.mx), my(splat.my), a(splat.a), b(splat.b), c(splat.c),
+          opacity(splat.opacity), q_max(splat.q_max) {
+        const PixelBox& box = splat.box;
         dx = lanes + (px0 + 0.5f - mx);
         qa = a * dx * dx;
         qb = 2.0f * b * dx;
@@ -169,30 +177,28 @@ struct SplatInTile {
 // L2, and the per-Gaussian work is too long for the CPU to run ahead to the next loads itself.
 constexpr int kPrefetchAhead = 4;
 
-// Requests the cache lines that compositing Gaussian g reads.
-inline void prefetch_splat(const float* means2d, const float* conics, const float* opacities,
-                           const float* features, int64_t channels, const TileBins& bins,
-                           int32_t g) {
-    __builtin_prefetch(means2d + 2 * g);
-    __builtin_prefetch(conics + 3 * g);
-    __builtin_prefetch(opacities + g);
-    __builtin_prefetch(features + g * channels);
-    __builtin_prefetch(bins.boxes.data() + g);
-    __builtin_prefetch(bins.q_max.data() + g);
+// Requests the cache lines that compositing the Gaussian of `rank` reads.
+inline void prefetch_splat(const TileBins& bins, int32_t rank) {
+    const SplatRecord* splat = bins.splats.data() + rank;
+    __builtin_prefetch(splat);
+    __builtin_prefetch(reinterpret_cast<const char*>(splat + 1) - 1);
+    __builtin_prefetch(bins.features.data() + rank * bins.channels);
 }
 
+// Bins the Gaussians: means2d [N, 2], conics [N, 3], opacities [N], features [N, C], depths [N]
+// (sort key), radii [N] (0 = not drawn).
 TileBins bin_gaussians(const float* means2d, const float* conics, const float* opacities,
-                       const float* depths, const int32_t* radii, int64_t n, int width,
-                       int height);
+                       const float* features, int64_t channels, const float* depths,
+                       const int32_t* radii, int64_t n, int width, int height);
 
-void rasterize_forward(const float* means2d, const float* conics, const float* opacities,
-                       const float* features, int64_t channels, const TileBins& bins,
-                       int width, int height, float* image, float* transmittance,
-                       int32_t* last_entry);
+// image [H, W, C], transmittance [H, W] and last_entry [H, W] (one past the list entry of each
+// pixel's last contributor) of the binned Gaussians.
+void rasterize_forward(const TileBins& bins, int width, int height, float* image,
+                       float* transmittance, int32_t* last_entry);
 
-void rasterize_backward(const float* means2d, const float* conics, const float* opacities,
-                        const float* features, int64_t n, int64_t channels,
-                        const TileBins& bins, int width, int height,
+// Gradients [N, ...] of the inputs' means2d, conics, opacities and features (added to
+// grad_features), and the per-Gaussian sum of |dL/dmean2d|, from the forward's outputs.
+void rasterize_backward(const TileBins& bins, int width, int height,
                         const float* transmittance, const int32_t* last_entry,
                         const float* grad_image, const float* grad_alpha,
                         float* grad_means2d, float* grad_conics, float* grad_opacities,

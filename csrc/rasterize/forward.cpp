@@ -7,11 +7,10 @@
 
 namespace surgsplat {
 
-void rasterize_forward(const float* means2d, const float* conics, const float* opacities,
-                       const float* features, int64_t channels, const TileBins& bins,
-                       int width, int height, float* image, float* transmittance,
-                       int32_t* last_entry) {
+void rasterize_forward(const TileBins& bins, int width, int height, float* image,
+                       float* transmittance, int32_t* last_entry) {
     const int tiles = bins.tiles_x * bins.tiles_y;
+    const int64_t channels = bins.channels;
     const RowF lanes = lane_offsets();
 #pragma omp parallel
     {
@@ -33,12 +32,10 @@ void rasterize_forward(const float* means2d, const float* conics, const float* o
                 row_live[row] = any_lane(live[row]);
             }
             for (int32_t k = start; k < end; ++k) {
-                const int32_t g = bins.ids[k];
-                if (k + kPrefetchAhead < end)
-                    prefetch_splat(means2d, conics, opacities, features, channels, bins,
-                                   bins.ids[k + kPrefetchAhead]);
-                const SplatInTile s(means2d, conics, opacities, bins, g, px0, py0, lanes);
-                const float* feature = features + g * channels;
+                const int32_t rank = bins.ranks[k];
+                if (k + kPrefetchAhead < end) prefetch_splat(bins, bins.ranks[k + kPrefetchAhead]);
+                const SplatInTile s(bins.splats[rank], px0, py0, lanes);
+                const float* feature = bins.features.data() + rank * channels;
                 bool any_live = false;
                 s.with_reached_registers([&](auto first_register, auto registers) {
                     constexpr int R0 = decltype(first_register)::value;
