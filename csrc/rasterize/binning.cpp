@@ -14,7 +14,8 @@ namespace {
 PixelBox alpha_box(const float* mean, const float* conic, float q_max, int width, int height) {
     PixelBox box{0, 0, -1, -1};
     const float det = conic[0] * conic[2] - conic[1] * conic[1];
-    if (!(q_max > 0.0f) || !(det > 0.0f)) return box;
+    // only positive definite conics are drawn (the passes rely on q >= 0)
+    if (!(q_max > 0.0f) || !(det > 0.0f) || !(conic[0] > 0.0f)) return box;
     const float ext_x = std::sqrt(q_max * conic[2] / det);
     const float ext_y = std::sqrt(q_max * conic[0] / det);
     // pixel column i has centre i + 0.5
@@ -89,7 +90,7 @@ TileBins bin_gaussians(const float* means2d, const float* conics, const float* o
         const int32_t g = order[rank];
         bins.splats[rank] = SplatRecord{means2d[2 * g], means2d[2 * g + 1], conics[3 * g],
                                         conics[3 * g + 1], conics[3 * g + 2], opacities[g],
-                                        q_max[g], boxes[g], g};
+                                        q_max[g], std::log2(opacities[g]), boxes[g], g};
         std::copy(features + g * channels, features + (g + 1) * channels,
                   bins.features.begin() + rank * channels);
     }

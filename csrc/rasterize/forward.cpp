@@ -42,12 +42,9 @@ void rasterize_forward(const TileBins& bins, int width, int height, float* image
                     constexpr int N = decltype(registers)::value;
                     for (int row = s.row0; row <= s.row1; ++row) {
                         if (!row_live[row]) continue;
-                        const float dy = py0 + row + 0.5f - s.my;
-                        const RowPart<N> q = s.template q<R0, N>(dy);
-                        const RowPart<N> alpha = s.alpha(q);
+                        const RowPart<N> alpha = s.template alpha<R0, N>(py0 + row + 0.5f - s.my);
                         const RowPart<N> t = part<R0, N>(trans[row]);
-                        const RowPartI<N> in =
-                            part<R0, N>(live[row]) & (alpha >= kAlphaMin) & (q >= 0.0f);
+                        const RowPartI<N> in = part<R0, N>(live[row]) & (alpha >= kAlphaMin);
                         const RowPart<N> t_next = t * (1.0f - alpha);
                         const RowPartI<N> stop = in & (t_next < kTransmittanceMin);
                         const RowPartI<N> use = in & ~stop;
