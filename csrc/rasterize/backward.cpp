@@ -145,8 +145,9 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                     for (int i = 0; i < kFeatures; ++i) slot[i] += sums[i];
                     for (int64_t ch0 = 0; ch0 < channels; ch0 += 8) {
                         const int64_t count = std::min<int64_t>(8, channels - ch0);
-                        RowPart<N> features[8] = {};
-                        for (int64_t i = 0; i < count; ++i) features[i] = part<R0, N>(grad_f[ch0 + i]);
+                        RowPart<N> features[8];
+                        for (int i = 0; i < 8; ++i)
+                            features[i] = i < count ? part<R0, N>(grad_f[ch0 + i]) : RowPart<N>{};
                         lane_sums8(features, sums);
                         for (int64_t i = 0; i < count; ++i) slot[kFeatures + ch0 + i] += sums[i];
                     }

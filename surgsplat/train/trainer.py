@@ -242,10 +242,10 @@ class Trainer:
                                          self.model.opacity_factor)
         self.model.after_step(self.iteration)
         self.elapsed += time.perf_counter() - started
-        with torch.no_grad():  # squared error summed over channels, then over tissue pixels
-            squared = (output.rgb - frame.image).square_().sum(dim=-1)  # [H, W]
-            tissue = frame.tissue
-            mse = float((squared * tissue).sum()) / max(int(tissue.sum()) * output.rgb.shape[2], 1)
+        with torch.no_grad():  # squared error over the tissue pixels and the channels
+            squared = (output.rgb - frame.image).square_().mul_(frame.tissue.unsqueeze(-1))
+            count = int(frame.tissue.sum()) * output.rgb.shape[2]
+            mse = float(squared.sum()) / max(count, 1)
         return StepStats(self.iteration, float(loss.detach()), psnr_from_mse(mse),
                          self.model.gaussians.num_gaussians, self.elapsed,
                          {name: float(value.detach()) for name, value in terms.items()})
