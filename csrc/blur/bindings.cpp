@@ -49,41 +49,44 @@ void blur(In<float> planes, In<float> taps, Out<float> out) {
                            taps.data(), radius, out.data());
 }
 
-const float* weights_of(const std::optional<In<float>>& weights, const Image& s) {
-    if (!weights) return nullptr;
-    expect_size(*weights, s.height * s.width, "weights");
-    return weights->data();
+// The data of an optional per-pixel map [H, W] named `name`, or null.
+const float* pixel_map(const std::optional<In<float>>& values, const Image& s, const char* name) {
+    if (!values) return nullptr;
+    expect_size(*values, s.height * s.width, name);
+    return values->data();
 }
 
 double ssim_forward(In<float> pred, In<float> gt, In<float> taps, float c1, float c2,
-                    std::optional<In<float>> weights, Out<float> moments,
-                    std::optional<Out<float>> map) {
+                    std::optional<In<float>> weights, std::optional<In<float>> image_mask,
+                    Out<float> moments, std::optional<Out<float>> map) {
     const Image s = check_images(pred, gt);
     const int radius = check_taps(taps);
-    const float* w = weights_of(weights, s);
+    const float* w = pixel_map(weights, s, "weights");
+    const float* mask = pixel_map(image_mask, s, "image_mask");
     expect_size(moments, 4 * pred.size(), "moments");
     if (map) expect_size(*map, pred.size(), "map");
     nb::gil_scoped_release unlocked;
     return surgsplat::ssim_forward(pred.data(), gt.data(), s.height, s.width, s.channels,
-                                   taps.data(), radius, c1, c2, w, moments.data(),
+                                   taps.data(), radius, c1, c2, w, mask, moments.data(),
                                    map ? map->data() : nullptr);
 }
 
 void ssim_backward(In<float> pred, In<float> gt, In<float> moments, In<float> taps, float c1,
                    float c2, std::optional<In<float>> grad_map, std::optional<In<float>> weights,
-                   float grad_score, Out<float> grad_pred, Out<float> grad_gt) {
+                   float grad_score, std::optional<In<float>> image_mask, Out<float> grad_pred,
+                   Out<float> grad_gt) {
     const Image s = check_images(pred, gt);
     const int radius = check_taps(taps);
     expect_size(moments, 4 * pred.size(), "moments");
     if (grad_map) expect_size(*grad_map, pred.size(), "grad_map");
     const surgsplat::SsimUpstream upstream{grad_map ? grad_map->data() : nullptr,
-                                           weights_of(weights, s), grad_score};
+                                           pixel_map(weights, s, "weights"), grad_score};
     expect_size(grad_pred, pred.size(), "grad_pred");
     expect_size(grad_gt, pred.size(), "grad_gt");
     nb::gil_scoped_release unlocked;
     surgsplat::ssim_backward(pred.data(), gt.data(), moments.data(), s.height, s.width,
-                             s.channels, taps.data(), radius, c1, c2, upstream, grad_pred.data(),
-                             grad_gt.data());
+                             s.channels, taps.data(), radius, c1, c2, upstream,
+                             pixel_map(image_mask, s, "image_mask"), grad_pred.data(), grad_gt.data());
 }
 
 }  // namespace
@@ -93,17 +96,18 @@ void bind_blur(nb::module_& m) {
           "Blur each plane [P, H, W] with the symmetric 1D kernel `taps` along rows then "
           "columns, zero padding, into `out` [P, H, W]. Self-adjoint: also its own backward.");
     m.def("ssim_forward", &ssim_forward, nb::arg("pred"), nb::arg("gt"), nb::arg("taps"),
-          nb::arg("c1"), nb::arg("c2"), nb::arg("weights").none(), nb::arg("moments"),
-          nb::arg("map").none(),
+          nb::arg("c1"), nb::arg("c2"), nb::arg("weights").none(), nb::arg("image_mask").none(),
+          nb::arg("moments"), nb::arg("map").none(),
           "SSIM of two images [H, W, C] with the window `taps` (zero padding): writes the "
           "blurred moments [4, C, H, W] that ssim_backward reads and, unless None, the map "
           "[H, W, C]; returns the score, the sum over pixels and channels of weights [H, W] "
-          "(None: ones) times the map.");
+          "(None: ones) times the map. Unless None, image_mask [H, W] multiplies both images "
+          "before filtering.");
     m.def("ssim_backward", &ssim_backward, nb::arg("pred"), nb::arg("gt"), nb::arg("moments"),
           nb::arg("taps"), nb::arg("c1"), nb::arg("c2"), nb::arg("grad_map").none(),
-          nb::arg("weights").none(), nb::arg("grad_score"), nb::arg("grad_pred"),
-          nb::arg("grad_gt"),
+          nb::arg("weights").none(), nb::arg("grad_score"), nb::arg("image_mask").none(),
+          nb::arg("grad_pred"), nb::arg("grad_gt"),
           "Gradients [H, W, C] with respect to pred and gt of a loss whose gradient with "
           "respect to the map is grad_map [H, W, C], or if None grad_score * weights (the "
-          "backward of the score).");
+          "backward of the score), with the forward's image_mask.");
 }

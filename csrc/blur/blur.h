@@ -138,10 +138,12 @@ void blur_planes(const float* planes, int64_t count, int64_t height, int64_t wid
 // `taps` and the constants c1, c2. Writes the blurred moments [4, channels, height, width]
 // (E[x], E[y], E[x^2] + E[y^2], E[xy]; the backward reads them) and, unless null, the map S
 // [height, width, channels]. Returns the score: the sum of weights[pixel] * S over pixels and
-// channels (weights [height, width]; all ones when null).
+// channels (weights [height, width]; all ones when null). With image_mask [height, width] (not
+// null), both images are multiplied by it before filtering: with a 0/1 mask, the pixels outside
+// it read as 0 in both (the masked D-SSIM loss), without a masked copy of either image.
 double ssim_forward(const float* pred, const float* gt, int64_t height, int64_t width,
                     int64_t channels, const float* taps, int radius, float c1, float c2,
-                    const float* weights, float* moments, float* map);
+                    const float* weights, const float* image_mask, float* moments, float* map);
 
 // The gradient of a loss L with respect to the map S: grad_map [height, width, channels] when
 // not null, else grad_score * weights[pixel] (the backward of the score; weights null: ones).
@@ -152,9 +154,10 @@ struct SsimUpstream {
 };
 
 // Gradients of L with respect to pred and gt [height, width, channels], given the moments
-// written by ssim_forward.
+// written by ssim_forward with the same image_mask.
 void ssim_backward(const float* pred, const float* gt, const float* moments, int64_t height,
                    int64_t width, int64_t channels, const float* taps, int radius, float c1,
-                   float c2, const SsimUpstream& upstream, float* grad_pred, float* grad_gt);
+                   float c2, const SsimUpstream& upstream, const float* image_mask,
+                   float* grad_pred, float* grad_gt);
 
 }  // namespace surgsplat

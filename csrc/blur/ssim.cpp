@@ -115,9 +115,15 @@ double row_sum(const float* w, const float* v, int64_t width) {
     return sum;
 }
 
+// row[x] *= mask[x] (a row of the image mask), unless mask is null.
+void mask_row(float* __restrict row, const float* mask, int64_t width) {
+    if (mask == nullptr) return;
+    for (int64_t x = 0; x < width; ++x) row[x] *= mask[x];
+}
+
 struct ForwardWorker {
     Layout layout;
-    const float *pred, *gt, *weights;
+    const float *pred, *gt, *weights, *image_mask;
     float *moments, *map;
     double* row_sums;  // [C, H]
     float c1, c2;
@@ -127,6 +133,9 @@ struct ForwardWorker {
         const int64_t width = layout.width;
         gather(layout.image_row(pred, c, y), layout.channels, width, rows[0]);
         gather(layout.image_row(gt, c, y), layout.channels, width, rows[1]);
+        const float* mask = image_mask == nullptr ? nullptr : image_mask + y * width;
+        mask_row(rows[0], mask, width);
+        mask_row(rows[1], mask, width);
         const float* __restrict a = rows[0];
         const float* __restrict b = rows[1];
         float* __restrict squares = rows[2];
@@ -152,6 +161,7 @@ struct BackwardWorker {
     Layout layout;
     const float *pred, *gt, *moments;
     SsimUpstream upstream;
+    const float* image_mask;
     float *grad_pred, *grad_gt;
     float c1, c2;
     std::vector<float> scratch;  // four rows: dL/dS / x, y, dL/dx, dL/dy
@@ -176,7 +186,13 @@ struct BackwardWorker {
         float *a = scratch.data(), *b = a + width, *da = b + width, *db = da + width;
         gather(layout.image_row(pred, c, y), channels, width, a);
         gather(layout.image_row(gt, c, y), channels, width, b);
+        // the images were masked before filtering: the chain rule masks their gradients too
+        const float* mask = image_mask == nullptr ? nullptr : image_mask + y * width;
+        mask_row(a, mask, width);
+        mask_row(b, mask, width);
         chain_row(a, b, rows[0], rows[1], rows[2], rows[3], width, da, db);
+        mask_row(da, mask, width);
+        mask_row(db, mask, width);
         scatter(da, channels, width, layout.image_row(grad_pred, c, y));
         scatter(db, channels, width, layout.image_row(grad_gt, c, y));
     }
@@ -186,11 +202,12 @@ struct BackwardWorker {
 
 double ssim_forward(const float* pred, const float* gt, int64_t height, int64_t width,
                     int64_t channels, const float* taps, int radius, float c1, float c2,
-                    const float* weights, float* moments, float* map) {
+                    const float* weights, const float* image_mask, float* moments,
+                    float* map) {
     const Layout layout{height, width, channels};
     std::vector<double> row_sums(channels * height);
     blur_streamed(channels, 4, height, width, taps, radius, [&] {
-        return ForwardWorker{layout, pred, gt, weights, moments, map, row_sums.data(), c1, c2,
+        return ForwardWorker{layout, pred, gt, weights, image_mask, moments, map, row_sums.data(), c1, c2,
                              std::vector<float>(width)};
     });
     double score = 0.0;  // summed in a fixed order: the same result for any thread count
@@ -200,10 +217,11 @@ double ssim_forward(const float* pred, const float* gt, int64_t height, int64_t 
 
 void ssim_backward(const float* pred, const float* gt, const float* moments, int64_t height,
                    int64_t width, int64_t channels, const float* taps, int radius, float c1,
-                   float c2, const SsimUpstream& upstream, float* grad_pred, float* grad_gt) {
+                   float c2, const SsimUpstream& upstream, const float* image_mask,
+                   float* grad_pred, float* grad_gt) {
     const Layout layout{height, width, channels};
     blur_streamed(channels, 4, height, width, taps, radius, [&] {
-        return BackwardWorker{layout, pred, gt, moments, upstream, grad_pred, grad_gt, c1, c2,
+        return BackwardWorker{layout, pred, gt, moments, upstream, image_mask, grad_pred, grad_gt, c1, c2,
                               std::vector<float>(4 * width)};
     });
 }

@@ -29,29 +29,31 @@ C1 = 0.01 ** 2
 C2 = 0.03 ** 2
 
 
-def _native_forward(pred: Tensor, gt: Tensor, weights: Tensor | None,
+def _native_forward(pred: Tensor, gt: Tensor, weights: Tensor | None, image_mask: Tensor | None,
                     values: Tensor | None) -> tuple[float, Tensor, Tensor]:
-    """The native forward: (score, moments [4, C, H, W], taps); writes the map into `values`."""
+    """The native forward: (score, moments [4, C, H, W], taps); writes the map into `values`.
+    image_mask [H, W], unless None, multiplies both images before filtering."""
     height, width, channels = pred.shape
     moments = torch.empty(4, channels, height, width)  # blurred x, y, x^2 + y^2, xy
     taps = gaussian_taps(torch.float32, pred.device)
     score = native_blur_module().ssim_forward(
         pred.numpy(), gt.numpy(), taps.numpy(), C1, C2,
-        None if weights is None else weights.numpy(), moments.numpy(),
+        None if weights is None else weights.numpy(),
+        None if image_mask is None else image_mask.numpy(), moments.numpy(),
         None if values is None else values.numpy())
     return score, moments, taps
 
 
-def _native_backward(ctx, grad_map: Tensor | None, weights: Tensor | None,
-                     grad_score: float) -> tuple[Tensor | None, Tensor | None]:
+def _native_backward(ctx, grad_map: Tensor | None, weights: Tensor | None, grad_score: float,
+                     image_mask: Tensor | None = None) -> tuple[Tensor | None, Tensor | None]:
     """Gradients for pred and gt (None where not needed) from the saved forward state."""
     pred, gt, moments, taps = ctx.saved_tensors[:4]
     grad_pred, grad_gt = torch.empty_like(pred), torch.empty_like(gt)
     native_blur_module().ssim_backward(
         pred.numpy(), gt.numpy(), moments.numpy(), taps.numpy(), C1, C2,
         None if grad_map is None else grad_map.contiguous().numpy(),
-        None if weights is None else weights.numpy(), grad_score, grad_pred.numpy(),
-        grad_gt.numpy())
+        None if weights is None else weights.numpy(), grad_score,
+        None if image_mask is None else image_mask.numpy(), grad_pred.numpy(), grad_gt.numpy())
     return (grad_pred if ctx.needs_input_grad[0] else None,
             grad_gt if ctx.needs_input_grad[1] else None)
 
@@ -63,7 +65,7 @@ class _NativeSSIMMap(torch.autograd.Function):
     def forward(ctx, pred, gt):
         pred, gt = pred.detach().contiguous(), gt.detach().contiguous()
         values = torch.empty_like(pred)
-        _, moments, taps = _native_forward(pred, gt, None, values)
+        _, moments, taps = _native_forward(pred, gt, None, None, values)
         ctx.save_for_backward(pred, gt, moments, taps)
         return values
 
@@ -74,20 +76,25 @@ class _NativeSSIMMap(torch.autograd.Function):
 
 
 class _NativeSSIMScore(torch.autograd.Function):
-    """sum over pixels and channels of weights [H, W] (None: ones) times the native SSIM map,
-    without writing the map (float32, CPU), with its backward."""
+    """sum over pixels and channels of weights [H, W] (None: ones) times the native SSIM map of
+    the images, each multiplied by the weights first when mask_images, without writing the map
+    or the masked images (float32, CPU), with its backward."""
 
     @staticmethod
-    def forward(ctx, pred, gt, weights):
+    def forward(ctx, pred, gt, weights, mask_images):
         pred, gt = pred.detach().contiguous(), gt.detach().contiguous()
-        score, moments, taps = _native_forward(pred, gt, weights, None)
+        image_mask = weights if mask_images else None
+        score, moments, taps = _native_forward(pred, gt, weights, image_mask, None)
         ctx.save_for_backward(pred, gt, moments, taps, weights)
+        ctx.mask_images = mask_images
         return torch.tensor(score, dtype=pred.dtype)
 
     @staticmethod
     @once_differentiable
     def backward(ctx, grad):
-        return *_native_backward(ctx, None, ctx.saved_tensors[4], float(grad)), None
+        weights = ctx.saved_tensors[4]
+        image_mask = weights if ctx.mask_images else None
+        return *_native_backward(ctx, None, weights, float(grad), image_mask), None, None
 
 
 def _check_pair(pred: Tensor, gt: Tensor) -> None:
@@ -131,14 +138,17 @@ def ssim_map(pred: Tensor, gt: Tensor) -> Tensor:
     return ssim_map_reference(pred, gt)
 
 
-def ssim(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
+def ssim(pred: Tensor, gt: Tensor, mask: Tensor | None = None,
+         zero_unmasked: bool = False) -> Tensor:
     """Scalar SSIM of two images [H, W, C] in [0, 1].
 
     Without a mask: the mean of `ssim_map` over all pixels and channels. With a mask (bool [H, W],
     True = count the pixel): the mean of the map over the masked pixels and all channels; the
     images themselves are not altered, so windows centred on counted pixels still see their
-    uncounted neighbours. Differentiable; `1 - ssim(...)` is the D-SSIM loss. The native path
-    sums the masked map inside the kernel, without materialising it.
+    uncounted neighbours, unless zero_unmasked: then the unmasked pixels read as 0 in both
+    images (the masked D-SSIM loss). Differentiable; `1 - ssim(...)` is the D-SSIM loss. The
+    native path masks the images and sums the masked map inside the kernel, without
+    materialising either.
     """
     _check_pair(pred, gt)
     height, width, channels = pred.shape
@@ -148,9 +158,13 @@ def ssim(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
     count = height * width if mask is None else int(mask.sum())
     if mask is not None and count == 0:
         raise ValueError("the SSIM mask selects no pixel")
+    if zero_unmasked and mask is None:
+        raise ValueError("zero_unmasked needs a mask")
     weights = None if mask is None else mask.to(pred.dtype)  # [H, W]
     if _use_native(pred, gt):
-        return _NativeSSIMScore.apply(pred, gt, weights) / (count * channels)
+        return _NativeSSIMScore.apply(pred, gt, weights, zero_unmasked) / (count * channels)
+    if zero_unmasked:
+        pred, gt = pred * weights.unsqueeze(-1), gt * weights.unsqueeze(-1)
     values = ssim_map_reference(pred, gt)  # [H, W, C]
     if weights is None:
         return values.mean()

@@ -66,8 +66,7 @@ def d_ssim(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     _check(pred, gt, mask)
     if not mask.any():
         return pred.sum() * 0.0
-    weights = mask.unsqueeze(-1).to(pred.dtype)  # [H, W, 1]
-    return 1.0 - ssim(pred * weights, gt * weights, mask)
+    return 1.0 - ssim(pred, gt, mask, zero_unmasked=True)
 
 
 def photometric_loss(pred: Tensor, gt: Tensor, mask: Tensor, lambda_dssim: float,

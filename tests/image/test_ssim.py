@@ -140,6 +140,33 @@ def test_native_score_matches_reference_value_and_gradients(native_isa, masked):
         assert want.grad.abs().max().item() > 1e-4  # not vacuous
 
 
+
+def test_zero_unmasked_native_matches_masked_images(native_isa):
+    # zero_unmasked masks both images inside the kernel: the same score and gradients (float64
+    # reference, 1e-5 and 1e-6) as the reference SSIM of the images multiplied by the mask, and
+    # no gradient reaches the unmasked pixels
+    pred, gt = noisy_pair(seed=7)
+    mask = np.ones(gt.shape[:2], dtype=bool)
+    mask[8:25, 5:30] = False
+    mask_t = torch.tensor(mask)
+    inputs = [torch.tensor(a, dtype=torch.float32, requires_grad=True) for a in (pred, gt)]
+    reference = [torch.tensor(a, requires_grad=True) for a in (pred, gt)]
+    score = ssim(*inputs, mask=mask_t, zero_unmasked=True)
+    assert type(score.grad_fn.next_functions[0][0]).__name__ == "_NativeSSIMScoreBackward"
+    weights = mask_t.to(torch.float64).unsqueeze(-1)
+    values = ssim_map_reference(reference[0] * weights, reference[1] * weights)
+    expected = values[mask_t].mean()
+    assert score.item() == pytest.approx(expected.item(), abs=1e-5)
+    assert abs(score.item() - ssim(*[t.detach() for t in inputs], mask=mask_t).item()) > 1e-3
+    (2.0 * score).backward()
+    (2.0 * expected).backward()
+    for got, want in zip(inputs, reference):
+        assert (got.grad.double() - want.grad).abs().max().item() < 1e-6
+        assert got.grad[~mask_t].abs().max().item() == 0.0
+        assert want.grad.abs().max().item() > 1e-4
+    with pytest.raises(ValueError, match="needs a mask"):
+        ssim(*inputs, zero_unmasked=True)
+
 def test_native_gradient_only_for_inputs_that_need_it(native_isa):
     pred, gt = noisy_pair(seed=5)
     pred_t = torch.tensor(pred, dtype=torch.float32, requires_grad=True)
