@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <array>
 
+#include <omp.h>
+
 #include "common.h"
 
 namespace surgsplat {
@@ -95,21 +97,44 @@ TileBins bin_gaussians(const float* means2d, const float* conics, const float* o
                   bins.features.begin() + rank * channels);
     }
 
+    // Tile lists by a parallel counting sort: each thread counts, then writes, the entries of
+    // one contiguous run of ranks; every tile takes the threads' entries in thread order, so its
+    // list stays increasing in rank (nearest first). (Serial, these two passes were a fifth of
+    // the forward's time on 66k Gaussians.)
+    const int max_threads = omp_get_max_threads();
+    std::vector<int32_t> cursors(static_cast<size_t>(max_threads) * tiles, 0);  // [thread][tile]
     bins.offsets.assign(tiles + 1, 0);
-    for (const SplatRecord& splat : bins.splats) {
-        const PixelBox& b = splat.box;
-        for (int ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
-            for (int tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx)
-                ++bins.offsets[ty * bins.tiles_x + tx + 1];
-    }
-    for (int t = 0; t < tiles; ++t) bins.offsets[t + 1] += bins.offsets[t];
-    bins.ranks.resize(bins.offsets[tiles]);
-    std::vector<int32_t> cursor(bins.offsets.begin(), bins.offsets.end() - 1);
-    for (int32_t rank = 0; rank < count; ++rank) {
-        const PixelBox& b = bins.splats[rank].box;
-        for (int ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
-            for (int tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx)
-                bins.ranks[cursor[ty * bins.tiles_x + tx]++] = rank;
+#pragma omp parallel
+    {
+        const int thread = omp_get_thread_num(), threads = omp_get_num_threads();
+        const int64_t first = count * thread / threads, last = count * (thread + 1) / threads;
+        int32_t* cursor = cursors.data() + static_cast<size_t>(thread) * tiles;
+        const auto for_each_tile = [&](const PixelBox& b, auto&& f) {
+            for (int ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
+                for (int tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx) f(ty * bins.tiles_x + tx);
+        };
+        for (int64_t rank = first; rank < last; ++rank)
+            for_each_tile(bins.splats[rank].box, [&](int tile) { ++cursor[tile]; });
+#pragma omp barrier
+#pragma omp single
+        {
+            int32_t total = 0;
+            for (int tile = 0; tile < tiles; ++tile) {
+                bins.offsets[tile] = total;
+                for (int t = 0; t < threads; ++t) {
+                    int32_t& c = cursors[static_cast<size_t>(t) * tiles + tile];
+                    const int32_t here = c;
+                    c = total;
+                    total += here;
+                }
+            }
+            bins.offsets[tiles] = total;
+            bins.ranks.resize(total);
+        }
+        for (int64_t rank = first; rank < last; ++rank)
+            for_each_tile(bins.splats[rank].box, [&](int tile) {
+                bins.ranks[cursor[tile]++] = static_cast<int32_t>(rank);
+            });
     }
     return bins;
 }
