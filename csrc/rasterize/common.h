@@ -47,7 +47,7 @@ SURGSPLAT_INLINE RowPart<N> row_min(RowPart<N> x, float bound) {
 }
 
 // 2^y lane-wise for y <= 0 (below -125 it gives 2^-125, the smallest power whose products stay
-// normal numbers), to within 2e-7 relative: y = n + f with n an integer and |f| <= 1/2,
+// normal numbers), to within 3e-7 relative: y = n + f with n an integer and |f| <= 1/2,
 // 2^f = exp(f ln 2) by its degree-6 Taylor polynomial, n added to the result's exponent bits.
 // The compositing loops are bound by the latency of this chain, not by its operations, so the
 // polynomial is evaluated in Estrin's scheme (three dependent multiply-adds, against Horner's

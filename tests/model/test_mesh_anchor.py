@@ -138,7 +138,15 @@ def within_band(anchor: MeshAnchor, gaussians: GaussianModel, state: GaussianSta
     radius = anchor.face_radius(corners)
     local = to_face_local(state.means.detach().double(), corners)
     assert torch.all(local[:, 2].abs() <= config.offset_band * radius + tolerance)
-    assert torch.all(barycentric(local[:, :2], corners) >= -1e-4)
+    # inside the triangle: the distance to each edge's line (barycentric coordinate times the
+    # height over that edge) is at least -tolerance; in barycentric units a float32 rounding of
+    # the centre would look large on the marching-cubes mesh's sliver faces
+    v0, v1, v2 = corners.unbind(-2)
+    double_area = torch.cross(v1 - v0, v2 - v0, dim=-1).norm(dim=-1)
+    edges = torch.stack([(v2 - v1).norm(dim=-1), (v0 - v2).norm(dim=-1), (v1 - v0).norm(dim=-1)],
+                        dim=-1)  # the edge opposite each corner
+    heights = double_area.unsqueeze(-1) / edges
+    assert torch.all(barycentric(local[:, :2], corners) * heights >= -tolerance)
     limit = config.scale_limit * radius
     scales = state.scales.detach().double()
     assert torch.all(scales[:, :2] <= limit[:, None] + tolerance)
