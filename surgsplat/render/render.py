@@ -43,14 +43,19 @@ def view_directions(means: Tensor, world_to_camera: Tensor | None = None) -> Ten
 class _ColourAndDepth(torch.autograd.Function):
     """colour [H, W, 3] = image[..., :3] + (1 - alpha) background and depth [H, W] =
     image[..., 3] / max(alpha, MIN_ALPHA_FOR_DEPTH) from the rasterised image [H, W, C >= 4] and
-    alpha [H, W]; background [3] is data. The backward is written out: autograd's chain (two
-    zero-filled [H, W, C] gradients of the slices, a broadcast product summed over the channels,
-    the division's two terms) cost about twice as many image-sized passes per training step."""
+    alpha [H, W]; background [3] is data (None: black, the colour is a view of the image). The
+    backward is written out: autograd's chain (two zero-filled [H, W, C] gradients of the slices,
+    a broadcast product summed over the channels, the division's two terms) cost about twice as
+    many image-sized passes per training step; an output the loss does not use costs nothing."""
 
     @staticmethod
-    def forward(ctx, image: Tensor, alpha: Tensor, background: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(ctx, image: Tensor, alpha: Tensor,
+                background: Tensor | None) -> tuple[Tensor, Tensor]:
+        ctx.set_materialize_grads(False)
         clamped = alpha.clamp_min(MIN_ALPHA_FOR_DEPTH)
-        colour = torch.addcmul(image[..., :3], (1.0 - alpha).unsqueeze(-1), background)
+        colour = image[..., :3]
+        if background is not None:
+            colour = torch.addcmul(colour, (1.0 - alpha).unsqueeze(-1), background)
         depth = image[..., 3] / clamped
         ctx.save_for_backward(alpha, clamped, depth, background)
         ctx.channels = image.shape[-1]
@@ -63,7 +68,8 @@ class _ColourAndDepth(torch.autograd.Function):
         grad_alpha = alpha.new_zeros(alpha.shape)
         if grad_colour is not None:
             grad_image[..., :3] = grad_colour
-            grad_alpha -= grad_colour @ background
+            if background is not None:
+                grad_alpha -= grad_colour @ background
         if grad_depth is not None:
             grad_depth_raw = grad_depth / clamped
             grad_image[..., 3] = grad_depth_raw
@@ -99,9 +105,8 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
                              projection.depths, projection.radii, width, height,
                              absgrad=absgrad, backend=backend)
 
-    if background is None:
-        background = torch.zeros(3, dtype=image.dtype)
-    color, depth = _ColourAndDepth.apply(image, alpha, background.to(image))
+    color, depth = _ColourAndDepth.apply(image, alpha,
+                                         None if background is None else background.to(image))
     out = RenderOutput(rgb=color, alpha=alpha, depth=depth, projection=projection)
     offset = 4
     for name, value in extras.items():
