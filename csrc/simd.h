@@ -234,15 +234,19 @@ SURGSPLAT_INLINE void lane_sums8(const Pack<float, N> (&v)[8], float* sums) {
 #endif
     }
     // hadd(a, b) = [a0+a1, a2+a3, b0+b1, b2+b3 | a4+a5, a6+a7, b4+b5, b6+b7]
-    const __m256 low_high_0123 = _mm256_hadd_ps(_mm256_hadd_ps(h[0], h[1]), _mm256_hadd_ps(h[2], h[3]));
-    const __m256 low_high_4567 = _mm256_hadd_ps(_mm256_hadd_ps(h[4], h[5]), _mm256_hadd_ps(h[6], h[7]));
-    _mm256_storeu_ps(sums, _mm256_add_ps(_mm256_permute2f128_ps(low_high_0123, low_high_4567, 0x20),
-                                         _mm256_permute2f128_ps(low_high_0123, low_high_4567, 0x31)));
+    const __m256 halves_0123 =
+        _mm256_hadd_ps(_mm256_hadd_ps(h[0], h[1]), _mm256_hadd_ps(h[2], h[3]));
+    const __m256 halves_4567 =
+        _mm256_hadd_ps(_mm256_hadd_ps(h[4], h[5]), _mm256_hadd_ps(h[6], h[7]));
+    _mm256_storeu_ps(sums, _mm256_add_ps(_mm256_permute2f128_ps(halves_0123, halves_4567, 0x20),
+                                         _mm256_permute2f128_ps(halves_0123, halves_4567, 0x31)));
 #else
     for (int group = 0; group < 8; group += 4) {
 #if defined(__x86_64__) || defined(_M_X64)
-        const __m128 a = reinterpret_cast<__m128>(s[group]), b = reinterpret_cast<__m128>(s[group + 1]);
-        const __m128 c = reinterpret_cast<__m128>(s[group + 2]), d = reinterpret_cast<__m128>(s[group + 3]);
+        const __m128 a = reinterpret_cast<__m128>(s[group]);
+        const __m128 b = reinterpret_cast<__m128>(s[group + 1]);
+        const __m128 c = reinterpret_cast<__m128>(s[group + 2]);
+        const __m128 d = reinterpret_cast<__m128>(s[group + 3]);
         // [a0+a2, b0+b2, a1+a3, b1+b3] and the same of c, d; then the halves of both added
         const __m128 ab = _mm_add_ps(_mm_unpacklo_ps(a, b), _mm_unpackhi_ps(a, b));
         const __m128 cd = _mm_add_ps(_mm_unpacklo_ps(c, d), _mm_unpackhi_ps(c, d));

@@ -86,7 +86,8 @@ void ssim_backward(In<float> pred, In<float> gt, In<float> moments, In<float> ta
     nb::gil_scoped_release unlocked;
     surgsplat::ssim_backward(pred.data(), gt.data(), moments.data(), s.height, s.width,
                              s.channels, taps.data(), radius, c1, c2, upstream,
-                             pixel_map(image_mask, s, "image_mask"), grad_pred.data(), grad_gt.data());
+                             pixel_map(image_mask, s, "image_mask"), grad_pred.data(),
+                             grad_gt.data());
 }
 
 }  // namespace

@@ -115,9 +115,10 @@ double row_sum(const float* w, const float* v, int64_t width) {
     return sum;
 }
 
-// row[x] *= mask[x] (a row of the image mask), unless mask is null.
-void mask_row(float* __restrict row, const float* mask, int64_t width) {
-    if (mask == nullptr) return;
+// row[x] *= image_mask[y, x], unless image_mask [height, width] is null.
+void mask_row(float* __restrict row, const float* image_mask, int64_t y, int64_t width) {
+    if (image_mask == nullptr) return;
+    const float* mask = image_mask + y * width;
     for (int64_t x = 0; x < width; ++x) row[x] *= mask[x];
 }
 
@@ -133,9 +134,8 @@ struct ForwardWorker {
         const int64_t width = layout.width;
         gather(layout.image_row(pred, c, y), layout.channels, width, rows[0]);
         gather(layout.image_row(gt, c, y), layout.channels, width, rows[1]);
-        const float* mask = image_mask == nullptr ? nullptr : image_mask + y * width;
-        mask_row(rows[0], mask, width);
-        mask_row(rows[1], mask, width);
+        mask_row(rows[0], image_mask, y, width);
+        mask_row(rows[1], image_mask, y, width);
         const float* __restrict a = rows[0];
         const float* __restrict b = rows[1];
         float* __restrict squares = rows[2];
@@ -187,12 +187,11 @@ struct BackwardWorker {
         gather(layout.image_row(pred, c, y), channels, width, a);
         gather(layout.image_row(gt, c, y), channels, width, b);
         // the images were masked before filtering: the chain rule masks their gradients too
-        const float* mask = image_mask == nullptr ? nullptr : image_mask + y * width;
-        mask_row(a, mask, width);
-        mask_row(b, mask, width);
+        mask_row(a, image_mask, y, width);
+        mask_row(b, image_mask, y, width);
         chain_row(a, b, rows[0], rows[1], rows[2], rows[3], width, da, db);
-        mask_row(da, mask, width);
-        mask_row(db, mask, width);
+        mask_row(da, image_mask, y, width);
+        mask_row(db, image_mask, y, width);
         scatter(da, channels, width, layout.image_row(grad_pred, c, y));
         scatter(db, channels, width, layout.image_row(grad_gt, c, y));
     }
@@ -207,8 +206,8 @@ double ssim_forward(const float* pred, const float* gt, int64_t height, int64_t 
     const Layout layout{height, width, channels};
     std::vector<double> row_sums(channels * height);
     blur_streamed(channels, 4, height, width, taps, radius, [&] {
-        return ForwardWorker{layout, pred, gt, weights, image_mask, moments, map, row_sums.data(), c1, c2,
-                             std::vector<float>(width)};
+        return ForwardWorker{layout, pred, gt, weights, image_mask, moments, map,
+                             row_sums.data(), c1, c2, std::vector<float>(width)};
     });
     double score = 0.0;  // summed in a fixed order: the same result for any thread count
     for (double row : row_sums) score += row;
@@ -221,8 +220,8 @@ void ssim_backward(const float* pred, const float* gt, const float* moments, int
                    float* grad_pred, float* grad_gt) {
     const Layout layout{height, width, channels};
     blur_streamed(channels, 4, height, width, taps, radius, [&] {
-        return BackwardWorker{layout, pred, gt, moments, upstream, image_mask, grad_pred, grad_gt, c1, c2,
-                              std::vector<float>(4 * width)};
+        return BackwardWorker{layout, pred, gt, moments, upstream, image_mask, grad_pred,
+                              grad_gt, c1, c2, std::vector<float>(4 * width)};
     });
 }
 
