@@ -26,3 +26,5 @@ void bind_hexplane(nanobind::module_& m);
 void bind_blur(nanobind::module_& m);
 void bind_project(nanobind::module_& m);
 void bind_probe(nanobind::module_& m);
+void bind_gaussian_basis(nanobind::module_& m);
+void bind_sh(nanobind::module_& m);

@@ -57,4 +57,6 @@ SURGSPLAT_NB_MODULE(SURGSPLAT_MODULE, m) {
     bind_blur(m);
     bind_project(m);
     bind_probe(m);
+    bind_gaussian_basis(m);
+    bind_sh(m);
 }

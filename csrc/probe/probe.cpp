@@ -11,7 +11,7 @@ namespace {
 // exp(x) for x <= 0, lane-wise, the usual way: x = n ln2 + r with |r| <= ln2 / 2, exp(r) by its
 // degree-6 Taylor polynomial in Horner's scheme (relative error < 2e-7), 2^n built in the
 // exponent bits. The kernels compute alpha as one power of two with a shorter dependency chain
-// (rasterize/common.h, row_pow2); the probe stays the plain loop they are measured against.
+// (simd.h, pow2); the probe stays the plain loop they are measured against.
 SURGSPLAT_INLINE RowF plain_exp(RowF x) {
     x = select(x < -87.0f, row_of(-87.0f), x);
     const float round_magic = 12582912.0f;  // 1.5 * 2^23: adding it rounds to integer

@@ -34,6 +34,7 @@ from surgsplat.errors import SurgsplatError
 from surgsplat.fields.deformation import (Deformation, DeformationField, num_channels,
                                           time_capacity)
 from surgsplat.model.component import ComponentConfig, SceneInfo
+from surgsplat.render.native import Backend, dense_grad, native_module, resolve_backend
 
 WEIGHTS = "basis_weights"
 CENTRES = "basis_centres"
@@ -105,14 +106,34 @@ class GaussianBasisField(DeformationField):
         if weights.shape[1:] != (self.num_channels, self.config.num_basis):
             raise ValueError(f"{WEIGHTS} must be [N, {self.num_channels}, "
                              f"{self.config.num_basis}], got {tuple(weights.shape)}")
-        basis = basis_values(attributes[CENTRES], attributes[LOG_WIDTHS], t)  # [N, B]
-        channels = _WeightedSum.apply(weights, basis)  # [N, D]
+        channels = deformation_channels(weights, attributes[CENTRES], attributes[LOG_WIDTHS], t)
         return Deformation.from_channels(channels, self.position_scale())
 
     def attribute_lrs(self) -> dict[str, float]:
         config = self.config
         return {WEIGHTS: config.weights_lr, CENTRES: config.centres_lr,
                 LOG_WIDTHS: config.log_widths_lr}
+
+
+def deformation_channels(weights: Tensor, centres: Tensor, log_widths: Tensor, t: float,
+                         backend: Backend = "auto") -> Tensor:
+    """[N, D] channels sum_b weights [N, D, B] b(t; centres [N, B], exp(log_widths [N, B])).
+
+    backend "native": the fused kernel (csrc/basis: the basis, the weighted sum and their
+    gradients in one pass over the Gaussians, float32 CPU tensors); "reference": PyTorch
+    (`deformation_channels_reference`); "auto": native when it can run the inputs.
+    """
+    tensors = [weights, centres, log_widths]
+    if resolve_backend("gaussian_basis", backend, tensors) == "native":
+        return _NativeGaussianBasis.apply(weights, centres, log_widths, float(t))
+    return deformation_channels_reference(weights, centres, log_widths, t)
+
+
+def deformation_channels_reference(weights: Tensor, centres: Tensor, log_widths: Tensor,
+                                   t: float) -> Tensor:
+    """PyTorch reference of `deformation_channels` (any dtype, autograd's gradients)."""
+    basis = basis_values(centres, log_widths, t)  # [N, B]
+    return torch.einsum("ndb,nb->nd", weights, basis)
 
 
 def basis_values(centres: Tensor, log_widths: Tensor, t: float) -> Tensor:
@@ -122,22 +143,24 @@ def basis_values(centres: Tensor, log_widths: Tensor, t: float) -> Tensor:
     return torch.exp(-0.5 * z * z)
 
 
-class _WeightedSum(torch.autograd.Function):
-    """out [N, D] = sum_b weights [N, D, B] * basis [N, B].
-
-    Written out because autograd's generic backward of the batched product costs about twice
-    as much on a CPU as the two products below.
-    """
+class _NativeGaussianBasis(torch.autograd.Function):
+    """Autograd wrapper of the native kernels; the time is a constant."""
 
     @staticmethod
-    def forward(ctx, weights: Tensor, basis: Tensor) -> Tensor:
-        ctx.save_for_backward(weights, basis)
-        return torch.bmm(weights, basis.unsqueeze(-1)).squeeze(-1)
+    def forward(ctx, weights: Tensor, centres: Tensor, log_widths: Tensor, t: float) -> Tensor:
+        inputs = [x.detach().contiguous() for x in (weights, centres, log_widths)]
+        out = weights.new_empty(weights.shape[:2])
+        native_module().gaussian_basis_forward(*(x.numpy() for x in inputs), t, out.numpy())
+        ctx.save_for_backward(*inputs)
+        ctx.t = t
+        return out
 
     @staticmethod
-    def backward(ctx, grad: Tensor) -> tuple[Tensor | None, Tensor | None]:
-        weights, basis = ctx.saved_tensors
-        grad_weights = grad.unsqueeze(-1) * basis.unsqueeze(1) if ctx.needs_input_grad[0] else None
-        grad_basis = (torch.bmm(grad.unsqueeze(1), weights).squeeze(1)
-                      if ctx.needs_input_grad[1] else None)
-        return grad_weights, grad_basis
+    def backward(ctx, grad_out: Tensor) -> tuple[Tensor, Tensor, Tensor, None]:
+        weights, centres, log_widths = ctx.saved_tensors
+        grads = [torch.empty_like(weights), torch.empty_like(centres),
+                 torch.empty_like(log_widths)]
+        native_module().gaussian_basis_backward(
+            weights.numpy(), centres.numpy(), log_widths.numpy(), ctx.t,
+            dense_grad(grad_out, tuple(weights.shape[:2])).numpy(), *(g.numpy() for g in grads))
+        return (*grads, None)

@@ -49,8 +49,7 @@ from surgsplat.losses.retinex import bright_channel_loss, retinex_loss
 from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
                                        RenderContext, SceneInfo, SetupContext)
 from surgsplat.model.state import GaussianState
-from surgsplat.render.render import view_directions
-from surgsplat.render.sh import SH_C0, eval_sh
+from surgsplat.render.sh import SH_C0, sh_colour
 
 MAP_MULTIPLE = 2 ** (LEVELS - 1)
 """The illumination maps' sides are multiples of this (the UNet pools twice)."""
@@ -256,8 +255,8 @@ class LumiState(Component):
     def render_channels(self, state: GaussianState, gaussians, camera,
                         when: FrameTime) -> dict[str, Tensor]:
         """The reflectance: the canonical (unmodulated) coefficients' colour [N, 3]."""
-        directions = view_directions(state.means, camera.world_to_camera)
-        return {"reflectance": eval_sh(state.sh_degree, gaussians.sh_coeffs(), directions)}
+        return {"reflectance": sh_colour(state.sh_degree, gaussians.sh_coeffs(), state.means,
+                                         camera.world_to_camera)}
 
     def finish_render(self, output, camera, when: FrameTime) -> None:
         if not self.is_live(when):

@@ -14,7 +14,7 @@ from torch import Tensor
 
 from surgsplat.render.project import Projection, project
 from surgsplat.render.rasterize import Backend, rasterize
-from surgsplat.render.sh import eval_sh
+from surgsplat.render.sh import sh_colour
 
 MIN_ALPHA_FOR_DEPTH = 1e-6
 """Expected depth divides by alpha clamped to at least this."""
@@ -29,15 +29,6 @@ class RenderOutput:
     depth: Tensor  # [H, W] expected camera depth of the visible surface (sum w z / alpha)
     projection: Projection  # the screen-space Gaussians (radii, means2d, ...)
     extras: dict[str, Tensor] = field(default_factory=dict)  # name -> [H, W, k], alpha-blended
-
-
-def view_directions(means: Tensor, world_to_camera: Tensor | None = None) -> Tensor:
-    """[N, 3] unit directions from the camera centre to the means [N, 3] (world frame), the
-    directions at which spherical-harmonic colour is evaluated."""
-    w2c = torch.eye(4, dtype=means.dtype) if world_to_camera is None else world_to_camera
-    camera_centre = -w2c[:3, :3].T @ w2c[:3, 3]
-    return torch.nn.functional.normalize(means - camera_centre, dim=-1)
-
 
 
 class _ColourAndDepth(torch.autograd.Function):
@@ -95,7 +86,7 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
     if sh_degree is None:
         rgb = colors
     else:
-        rgb = eval_sh(sh_degree, colors, view_directions(means, world_to_camera))
+        rgb = sh_colour(sh_degree, colors, means, world_to_camera, backend=backend)
     channels = [rgb, projection.depths[:, None]]
     extras = extras or {}
     for value in extras.values():

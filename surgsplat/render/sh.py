@@ -1,10 +1,17 @@
 """Real spherical harmonics up to degree 3 for view-dependent colour (the 3DGS convention:
-colour = sum_k c_k Y_k(d) + 0.5, clamped at 0)."""
+colour = sum_k c_k Y_k(d) + 0.5, clamped at 0).
+
+`sh_colour` is what the renderer calls: the colour of every Gaussian seen from the camera, by the
+native kernel (csrc/sh, forward and backward in one pass over the Gaussians) when it can run the
+inputs, else by the PyTorch reference `eval_sh` at `view_directions`.
+"""
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
+
+from surgsplat.render.native import Backend, dense_grad, native_module, resolve_backend
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -32,12 +39,74 @@ def sh_basis(degree: int, dirs: Tensor) -> Tensor:
     return torch.stack(basis, dim=-1)
 
 
-def eval_sh(degree: int, coeffs: Tensor, dirs: Tensor) -> Tensor:
-    """Colour [N, 3] of SH coefficients [N, K>=(degree+1)^2, 3] seen along unit dirs [N, 3]."""
+def _check_degree(degree: int, coeffs: Tensor) -> int:
+    """The number of coefficients degree uses, after checking coeffs [N, K, 3] has them."""
     if not 0 <= degree <= 3:
         raise ValueError(f"spherical-harmonic degree must be 0..3, got {degree}")
     num = (degree + 1) ** 2
-    if coeffs.shape[1] < num:
-        raise ValueError(f"degree {degree} needs {num} SH coefficients, got {coeffs.shape[1]}")
+    if coeffs.dim() != 3 or coeffs.shape[1] < num or coeffs.shape[2] != 3:
+        raise ValueError(f"degree {degree} needs SH coefficients [N, K >= {num}, 3], got "
+                         f"{tuple(coeffs.shape)}")
+    return num
+
+
+def eval_sh(degree: int, coeffs: Tensor, dirs: Tensor) -> Tensor:
+    """Colour [N, 3] of SH coefficients [N, K>=(degree+1)^2, 3] seen along unit dirs [N, 3]."""
+    num = _check_degree(degree, coeffs)
     basis = sh_basis(degree, dirs)  # [N, num]
     return torch.clamp_min((basis[:, :, None] * coeffs[:, :num]).sum(1) + 0.5, 0.0)
+
+
+def camera_centre(world_to_camera: Tensor | None, dtype: torch.dtype) -> Tensor:
+    """[3] the camera's centre in the world frame (the origin when world_to_camera is None)."""
+    w2c = torch.eye(4, dtype=dtype) if world_to_camera is None else world_to_camera.to(dtype)
+    return -w2c[:3, :3].T @ w2c[:3, 3]
+
+
+def view_directions(means: Tensor, world_to_camera: Tensor | None = None) -> Tensor:
+    """[N, 3] unit directions from the camera centre to the means [N, 3] (world frame), the
+    directions at which spherical-harmonic colour is evaluated."""
+    return torch.nn.functional.normalize(means - camera_centre(world_to_camera, means.dtype),
+                                         dim=-1)
+
+
+def sh_colour(degree: int, coeffs: Tensor, means: Tensor, world_to_camera: Tensor | None = None,
+              backend: Backend = "auto") -> Tensor:
+    """Colour [N, 3] of the SH coefficients [N, K >= (degree+1)^2, 3] of Gaussians at means
+    [N, 3], seen from the camera world_to_camera [4, 4] (None: at the origin):
+    eval_sh(degree, coeffs, view_directions(means, world_to_camera)).
+
+    backend "native": the fused kernel (float32 CPU tensors, a camera without gradient);
+    "reference": PyTorch; "auto": native when it can run the inputs.
+    """
+    _check_degree(degree, coeffs)
+    camera_fixed = world_to_camera is None or not world_to_camera.requires_grad
+    if backend == "native" and not camera_fixed:
+        raise ValueError("sh_colour: the native backend takes a camera without gradient")
+    if camera_fixed and resolve_backend("sh", backend, [coeffs, means]) == "native":
+        centre = camera_centre(world_to_camera, torch.float32).contiguous()
+        return _NativeSh.apply(coeffs, means, centre, degree)
+    return eval_sh(degree, coeffs, view_directions(means, world_to_camera))
+
+
+class _NativeSh(torch.autograd.Function):
+    """Autograd wrapper of the native kernels; the camera centre and degree are constants."""
+
+    @staticmethod
+    def forward(ctx, coeffs: Tensor, means: Tensor, centre: Tensor, degree: int) -> Tensor:
+        inputs = [x.detach().contiguous() for x in (coeffs, means)]
+        rgb = means.new_empty(means.shape[0], 3)
+        native_module().sh_forward(*(x.numpy() for x in inputs), centre.numpy(), degree,
+                                   rgb.numpy())
+        ctx.save_for_backward(*inputs, centre)
+        ctx.degree = degree
+        return rgb
+
+    @staticmethod
+    def backward(ctx, grad_rgb: Tensor) -> tuple[Tensor, Tensor, None, None]:
+        coeffs, means, centre = ctx.saved_tensors
+        grad_coeffs, grad_means = torch.empty_like(coeffs), torch.empty_like(means)
+        native_module().sh_backward(coeffs.numpy(), means.numpy(), centre.numpy(), ctx.degree,
+                                    dense_grad(grad_rgb, (means.shape[0], 3)).numpy(),
+                                    grad_coeffs.numpy(), grad_means.numpy())
+        return grad_coeffs, grad_means, None, None

@@ -62,9 +62,9 @@ class DensifyStrategy:
         if iteration > config.stop_iter:
             return
         self._ensure_size(model.num_gaussians)
-        visible = radii > 0
-        self.grad_sum[visible] += screen_grad[visible]
-        self.visible_count[visible] += 1
+        visible = radii > 0  # masked sums, not boolean indexing: no nonzero() per step
+        self.grad_sum += torch.where(visible, screen_grad, 0.0)
+        self.visible_count += visible
         self.max_radius = torch.maximum(self.max_radius, radii.float())
         if iteration >= config.start_iter and iteration % config.every == 0:
             self._densify(model, optimizer, opacity_factor())
