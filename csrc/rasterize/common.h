@@ -46,7 +46,6 @@ SURGSPLAT_INLINE RowPart<N> row_min(RowPart<N> x, float bound) {
     return select(x > bound, RowPart<N>::all(bound), x);
 }
 
-
 // Inclusive pixel box outside which a Gaussian's alpha is below kAlphaMin.
 struct PixelBox {
     int32_t x0, y0, x1, y1;
