@@ -31,6 +31,17 @@ namespace surgsplat {
 // Every vector helper is forced inline: a call passes its 64-byte operands through memory.
 #define SURGSPLAT_INLINE inline __attribute__((always_inline))
 
+// Requests the cache line holding `address`. Two ways GCC drops a plain __builtin_prefetch
+// without a word: a write prefetch (rw = 1) unless the target has PRFCHW, which x86-64-v3 and v4
+// do not include, and any loop whose only effect is prefetching, which it deletes as dead code.
+// So this is a read prefetch, also for lines about to be written (a line read into a core's
+// cache is written there without a further miss), followed by an empty volatile asm that uses
+// the address and keeps it, and its loop, in the program.
+SURGSPLAT_INLINE void prefetch(const void* address) {
+    __builtin_prefetch(address);
+    asm volatile("" : : "r"(address));
+}
+
 constexpr int kVecLanes = 16;
 #if defined(__AVX512F__)
 constexpr int kRegLanes = 16;

@@ -33,7 +33,7 @@ void slab_backward(const Slabs& slabs, int64_t s, int64_t c, const Lanes* values
     for (int l = 0; l < points; ++l) {
         const int64_t i = first + l;
         const float* upstream_row = grad_out + i * width + s * features + c * kLanes;
-        if (i + kPrefetchPoints < n) __builtin_prefetch(upstream_row + kPrefetchPoints * width);
+        if (i + kPrefetchPoints < n) prefetch(upstream_row + kPrefetchPoints * width);
         Lanes value[kPlanesPerScale];
         for (int k = 0; k < kPlanesPerScale; ++k) value[k] = sample(slab[k], row[k], cells, k, l);
         // upstream[k] = g p_0 ... p_{k-1}; `after` runs over p_{k+1} ... p_5

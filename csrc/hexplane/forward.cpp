@@ -29,7 +29,7 @@ void hexplane_forward(const float* coords, int64_t n, const Slabs& slabs, float*
                 for (int l = 0; l < points; ++l) {
                     float* target = out + (first + l) * width + s * features + c * kLanes;
                     if (first + l + kPrefetchPoints < n)
-                        __builtin_prefetch(target + kPrefetchPoints * width, 1);
+                        prefetch(target + kPrefetchPoints * width);
                     const Lanes space = sample(slab[0], row[0], cells, 0, l) *
                                         sample(slab[1], row[1], cells, 1, l) *
                                         sample(slab[2], row[2], cells, 2, l);

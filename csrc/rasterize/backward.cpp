@@ -1,12 +1,18 @@
 // Backward compositing: per tile, Gaussians back to front, recovering each pixel's transmittance
-// by a reciprocal (T_before = T_after / (1 - alpha), simd.h) and the colour behind it incrementally.
-// Gradients are summed per thread, then reduced, so no atomics are needed.
+// by a reciprocal (T_before = T_after / (1 - alpha), simd.h) and what lies behind it
+// incrementally. Gradients are summed per thread, then reduced, so no atomics are needed.
 //
 // With w_i = alpha_i T_i, the image is C = sum_i w_i f_i and the alpha map A = sum_i w_i, so
 //   dL/df_i     = w_i dL/dC
 //   dL/dalpha_i = T_i [ (f_i - behind_i) . dL/dC + (1 - behind_alpha_i) dL/dA ]
-// where behind_i is what the Gaussians after i composite to, seen from just behind i.
+//               = T_i [ (f_i . dL/dC + dL/dA) - (behind_i . dL/dC + behind_alpha_i dL/dA) ]
+// where behind_i, behind_alpha_i are what the Gaussians after i composite to, seen from just
+// behind i. Both brackets are per-pixel scalars: the second, the pixel's `behind` below, obeys
+// the compositing recursion itself (behind_{i-1} = behind_i + alpha_i (first - behind_i)), as
+// dL/dC and dL/dA are constant per pixel. So a pixel carries two values back to front, its
+// transmittance and this dot product, instead of C + 2 (the colour and alpha behind it).
 #include <algorithm>
+#include <memory>
 
 #include <omp.h>
 
@@ -18,6 +24,9 @@ namespace {
 // Per-Gaussian gradient slots in a thread's buffer.
 enum Slot : int { kMx, kMy, kA, kB, kC, kOpacity, kAbsX, kAbsY, kFeatures };
 static_assert(kFeatures == 8, "the per-Gaussian sums are reduced as one group of eight");
+
+// Ranks ahead whose gradient outputs the reduction requests before writing them.
+constexpr int64_t kScatterAhead = 16;
 
 }  // namespace
 
@@ -32,14 +41,17 @@ void rasterize_backward(const TileBins& bins, int width, int height,
     const int64_t stride = kFeatures + channels;
     const int threads = omp_get_max_threads();
     const RowF lanes = lane_offsets();
-    // per thread, one gradient slot per drawn Gaussian, in depth order (by rank)
-    std::vector<float> partial(static_cast<size_t>(threads) * drawn * stride, 0.0f);
+    // per thread, one gradient slot per drawn Gaussian, in depth order (by rank); each thread
+    // zeroes its own slots (in parallel, and on the thread's side of the memory)
+    const size_t slots = static_cast<size_t>(drawn) * stride;
+    std::unique_ptr<float[]> partial(new float[threads * slots]);
 #pragma omp parallel
     {
-        float* mine = partial.data() + static_cast<size_t>(omp_get_thread_num()) * drawn * stride;
-        std::vector<RowF> behind(channels * kTile), grad_in(channels * kTile);  // [channel][row]
+        float* mine = partial.get() + static_cast<size_t>(omp_get_thread_num()) * slots;
+        std::fill(mine, mine + slots, 0.0f);
+        std::vector<RowF> grad_in(channels * kTile);  // [channel][row]
         std::vector<RowF> grad_f(channels);
-        RowF trans[kTile], behind_alpha[kTile], grad_a[kTile];
+        RowF trans[kTile], behind[kTile], grad_a[kTile];
         RowI last[kTile];
         int32_t row_last[kTile];  // per row, the largest last entry: later Gaussians skip it
         // interleaved static schedule: the same tiles go to the same thread on every call, so the
@@ -48,21 +60,30 @@ void rasterize_backward(const TileBins& bins, int width, int height,
         for (int tile = 0; tile < tiles; ++tile) {
             const int px0 = (tile % bins.tiles_x) * kTile, py0 = (tile / bins.tiles_x) * kTile;
             const int32_t start = bins.offsets[tile], end = bins.offsets[tile + 1];
-            std::fill(behind.begin(), behind.end(), row_of(0.0f));
+            const int next = tile + omp_get_num_threads();  // this thread's next tile
+            if (next < tiles) {
+                const int next_x = next % bins.tiles_x, next_y = next / bins.tiles_x;
+                prefetch_tile_pixels(transmittance, 1, width, height, next_x, next_y);
+                prefetch_tile_pixels(last_entry, 1, width, height, next_x, next_y);
+                prefetch_tile_pixels(grad_alpha, 1, width, height, next_x, next_y);
+                prefetch_tile_pixels(grad_image, channels, width, height, next_x, next_y);
+            }
+            // the tile's pixels; those outside the image composite nothing and get no gradient
+            const int columns = std::min(kTile, width - px0);
             for (int row = 0; row < kTile; ++row) {
                 trans[row] = row_of(1.0f);
                 last[row] = row_of(start);
-                grad_a[row] = behind_alpha[row] = row_of(0.0f);
+                grad_a[row] = behind[row] = row_of(0.0f);
                 for (int64_t ch = 0; ch < channels; ++ch) grad_in[ch * kTile + row] = row_of(0.0f);
-                for (int col = 0; col < kTile; ++col) {
-                    const int x = px0 + col, y = py0 + row;
-                    if (x >= width || y >= height) continue;
-                    const int64_t pixel = static_cast<int64_t>(y) * width + x;
-                    trans[row][col] = transmittance[pixel];
-                    last[row][col] = last_entry[pixel];
-                    grad_a[row][col] = grad_alpha[pixel];
-                    for (int64_t ch = 0; ch < channels; ++ch)
-                        grad_in[ch * kTile + row][col] = grad_image[pixel * channels + ch];
+                if (py0 + row < height) {
+                    const int64_t pixel0 = static_cast<int64_t>(py0 + row) * width + px0;
+                    trans[row] = load_tile_row(transmittance + pixel0, columns, 1.0f);
+                    last[row] = load_tile_row(last_entry + pixel0, columns, start);
+                    grad_a[row] = load_tile_row(grad_alpha + pixel0, columns, 0.0f);
+                    const float* grad_pixels = grad_image + pixel0 * channels;
+                    for (int col = 0; col < columns; ++col)
+                        for (int64_t ch = 0; ch < channels; ++ch)
+                            grad_in[ch * kTile + row][col] = grad_pixels[col * channels + ch];
                 }
                 row_last[row] = start;
                 for (int col = 0; col < kTile; ++col) row_last[row] = std::max(row_last[row], last[row][col]);
@@ -75,8 +96,8 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                 if (k - kPrefetchAhead >= start) {
                     const int32_t ahead = bins.ranks[k - kPrefetchAhead];
                     prefetch_splat(bins, ahead);
-                    __builtin_prefetch(mine + ahead * stride, 1);  // both lines a slot may span
-                    __builtin_prefetch(mine + (ahead + 1) * stride - 1, 1);
+                    prefetch(mine + ahead * stride);  // both lines a slot may span
+                    prefetch(mine + (ahead + 1) * stride - 1);
                 }
                 const SplatInTile s(bins.splats[rank], px0, py0, lanes);
                 const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;
@@ -106,20 +127,17 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                         const RowPart<N> t_before =
                             select(in, t_after * reciprocal(1.0f - alpha), t_after);
                         const RowPart<N> weight = alpha * t_before;
-                        RowPart<N> d_colour{};
+                        // first = f . dL/dC + dL/dA: this Gaussian's own term of dL/dalpha
+                        RowPart<N> first = part<R0, N>(grad_a[row]);
                         for (int64_t ch = 0; ch < channels; ++ch) {
                             const RowPart<N> grad = part<R0, N>(grad_in[ch * kTile + row]);
-                            RowF& behind_row = behind[ch * kTile + row];
-                            const RowPart<N> back = part<R0, N>(behind_row);
-                            const float f = feature[ch];
                             set_part<R0, N>(grad_f[ch], part<R0, N>(grad_f[ch]) + weight * grad);
-                            d_colour += (f - back) * grad;
-                            set_part<R0, N>(behind_row, back + alpha * (f - back));
+                            first += feature[ch] * grad;
                         }
-                        const RowPart<N> behind_a = part<R0, N>(behind_alpha[row]);
-                        const RowPart<N> d_alpha =
-                            t_before * (d_colour + (1.0f - behind_a) * part<R0, N>(grad_a[row]));
-                        set_part<R0, N>(behind_alpha[row], behind_a + alpha * (1.0f - behind_a));
+                        const RowPart<N> behind_dot = part<R0, N>(behind[row]);
+                        const RowPart<N> difference = first - behind_dot;
+                        const RowPart<N> d_alpha = t_before * difference;
+                        set_part<R0, N>(behind[row], behind_dot + alpha * difference);
                         set_part<R0, N>(trans[row], t_before);
                         // alpha = o G with G = exp(-q/2), unless clamped at kAlphaMax (then no
                         // gradient)
@@ -164,10 +182,18 @@ void rasterize_backward(const TileBins& bins, int width, int height,
         }
 #pragma omp for schedule(static)
         for (int64_t rank = 0; rank < drawn; ++rank) {
+            if (rank + kScatterAhead < drawn) {  // the outputs are written in the inputs' order
+                const int64_t ahead = bins.splats[rank + kScatterAhead].id;
+                prefetch(grad_features + ahead * channels);
+                prefetch(grad_means2d + 2 * ahead);
+                prefetch(grad_conics + 3 * ahead);
+                prefetch(grad_opacities + ahead);
+                prefetch(abs_grad_means2d + 2 * ahead);
+            }
             const int64_t g = bins.splats[rank].id;
             float sums[kFeatures] = {};
             for (int th = 0; th < threads; ++th) {
-                const float* s = partial.data() + (static_cast<size_t>(th) * drawn + rank) * stride;
+                const float* s = partial.get() + th * slots + rank * stride;
                 for (int i = 0; i < kFeatures; ++i) sums[i] += s[i];
                 for (int64_t ch = 0; ch < channels; ++ch)
                     grad_features[g * channels + ch] += s[kFeatures + ch];

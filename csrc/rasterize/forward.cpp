@@ -21,8 +21,13 @@ void rasterize_forward(const TileBins& bins, int width, int height, float* image
         bool row_live[kTile];
 #pragma omp for schedule(dynamic, 1)
         for (int tile = 0; tile < tiles; ++tile) {
-            const int px0 = (tile % bins.tiles_x) * kTile, py0 = (tile / bins.tiles_x) * kTile;
             const int32_t start = bins.offsets[tile], end = bins.offsets[tile + 1];
+            // the tile's outputs are written at its end: their lines arrive while it composites
+            const int tile_x = tile % bins.tiles_x, tile_y = tile / bins.tiles_x;
+            prefetch_tile_pixels(image, channels, width, height, tile_x, tile_y);
+            prefetch_tile_pixels(transmittance, 1, width, height, tile_x, tile_y);
+            prefetch_tile_pixels(last_entry, 1, width, height, tile_x, tile_y);
+            const int px0 = tile_x * kTile, py0 = tile_y * kTile;
             std::fill(accum.begin(), accum.end(), row_of(0.0f));
             const RowI in_image = (lanes + static_cast<float>(px0)) < static_cast<float>(width);
             for (int row = 0; row < kTile; ++row) {
