@@ -90,7 +90,8 @@ def tile_pairs(leaves, depths, radii) -> int:
     channels = leaves[3].shape[1]
     bins = native.native_module().rasterize_forward(
         *(t.detach().contiguous().numpy() for t in leaves), depths.contiguous().numpy(),
-        radii.numpy(), WIDTH, HEIGHT, torch.empty(HEIGHT, WIDTH, channels).numpy(),
+        radii.numpy(), torch.zeros(channels).numpy(), WIDTH, HEIGHT,
+        torch.empty(HEIGHT, WIDTH, channels).numpy(),
         torch.empty(HEIGHT, WIDTH).numpy(), torch.empty(HEIGHT, WIDTH, dtype=torch.int32).numpy())
     return bins.num_overlaps * 256
 

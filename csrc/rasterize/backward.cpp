@@ -6,11 +6,12 @@
 //   dL/df_i     = w_i dL/dC
 //   dL/dalpha_i = T_i [ (f_i - behind_i) . dL/dC + (1 - behind_alpha_i) dL/dA ]
 //               = T_i [ (f_i . dL/dC + dL/dA) - (behind_i . dL/dC + behind_alpha_i dL/dA) ]
-// where behind_i, behind_alpha_i are what the Gaussians after i composite to, seen from just
-// behind i. Both brackets are per-pixel scalars: the second, the pixel's `behind` below, obeys
-// the compositing recursion itself (behind_{i-1} = behind_i + alpha_i (first - behind_i)), as
-// dL/dC and dL/dA are constant per pixel. So a pixel carries two values back to front, its
-// transmittance and this dot product, instead of C + 2 (the colour and alpha behind it).
+// where behind_i, behind_alpha_i are what the Gaussians after i and the background composite
+// to, seen from just behind i (behind the last contributor: the background and alpha 0). Both
+// brackets are per-pixel scalars: the second, the pixel's `behind` below, obeys the compositing
+// recursion itself (behind_{i-1} = behind_i + alpha_i (first - behind_i)), as dL/dC and dL/dA
+// are constant per pixel. So a pixel carries two values back to front, its transmittance and
+// this dot product, instead of C + 2 (the colour and alpha behind it).
 #include <algorithm>
 #include <memory>
 
@@ -84,6 +85,8 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                     for (int col = 0; col < columns; ++col)
                         for (int64_t ch = 0; ch < channels; ++ch)
                             grad_in[ch * kTile + row][col] = grad_pixels[col * channels + ch];
+                    for (int64_t ch = 0; ch < channels; ++ch)
+                        behind[row] += bins.background[ch] * grad_in[ch * kTile + row];
                 }
                 row_last[row] = start;
                 for (int col = 0; col < kTile; ++col) row_last[row] = std::max(row_last[row], last[row][col]);

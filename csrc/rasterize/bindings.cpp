@@ -25,12 +25,14 @@ Screen check_inputs(const In<float>& means2d, const In<float>& conics,
 }
 
 TileBins forward(In<float> means2d, In<float> conics, In<float> opacities, In<float> features,
-                 In<float> depths, In<int32_t> radii, int width, int height, Out<float> image,
-                 Out<float> transmittance, Out<int32_t> last_entry) {
+                 In<float> depths, In<int32_t> radii, In<float> background, int width,
+                 int height, Out<float> image, Out<float> transmittance,
+                 Out<int32_t> last_entry) {
     const Screen s = check_inputs(means2d, conics, opacities, features);
     const size_t pixels = static_cast<size_t>(width) * height;
     expect_size(depths, s.n, "depths");
     expect_size(radii, s.n, "radii");
+    expect_size(background, s.channels, "background");
     expect_size(image, pixels * s.channels, "image");
     expect_size(transmittance, pixels, "transmittance");
     expect_size(last_entry, pixels, "last_entry");
@@ -38,6 +40,7 @@ TileBins forward(In<float> means2d, In<float> conics, In<float> opacities, In<fl
     TileBins bins = surgsplat::bin_gaussians(means2d.data(), conics.data(), opacities.data(),
                                              features.data(), s.channels, depths.data(),
                                              radii.data(), s.n, width, height);
+    bins.background.assign(background.data(), background.data() + s.channels);
     surgsplat::rasterize_forward(bins, width, height, image.data(), transmittance.data(),
                                  last_entry.data());
     return bins;

@@ -92,7 +92,9 @@ TileBins bin_gaussians(const float* means2d, const float* conics, const float* o
         const int32_t g = order[rank];
         bins.splats[rank] = SplatRecord{means2d[2 * g], means2d[2 * g + 1], conics[3 * g],
                                         conics[3 * g + 1], conics[3 * g + 2], opacities[g],
-                                        q_max[g], std::log2(opacities[g]), boxes[g], g};
+                                        q_max[g], std::log2(opacities[g]), boxes[g], g,
+                                        Reach::of(conics[3 * g], conics[3 * g + 1],
+                                                  conics[3 * g + 2], q_max[g])};
         std::copy(features + g * channels, features + (g + 1) * channels,
                   bins.features.begin() + rank * channels);
     }

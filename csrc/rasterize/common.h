@@ -61,33 +61,43 @@ struct PixelBox {
     int32_t x0, y0, x1, y1;
 };
 
+// A Gaussian's reach {a u^2 + 2 b u v + c v^2 <= q_max} (u = x - mx, v = y - my), described
+// for narrow_to_tile_rows: its half width in u, the u of its top point (where v is highest,
+// v_top = sqrt(a q_max / det)) and 1 / c. Computed once per Gaussian in binning, it saves three
+// square roots and five divisions per (Gaussian, tile). Binning draws only det > 0, a > 0,
+// q_max > 0.
+struct Reach {
+    float half_width, u_top, inv_c;
+
+    static Reach of(float a, float b, float c, float q_max) {
+        const float det = a * c - b * b;
+        return {std::sqrt(c * q_max / det), -b * std::sqrt(a * q_max / det) / a, 1.0f / c};
+    }
+};
+
 // Narrows the tile rows [row0, row1] to those where a Gaussian can reach alpha >= kAlphaMin at
 // a pixel centre of the columns of the tile starting at px0 (tile rows start at py0); false
-// when it reaches none. With u = x - mx, v = y - my the Gaussian's reach is the ellipse
-// {a u^2 + 2 b u v + c v^2 <= q_max}; cut to the strip of the tile's columns it stays convex, so
-// the rows it reaches are one run, from the lowest to the highest v on the cut. The ellipse's
-// upper boundary v(u) = (-b u + sqrt(c q_max - det u^2)) / c is concave with its maximum at the
-// top point u = -b v_top / a (v_top = sqrt(a q_max / det)): its highest v on the cut is at the u
-// of the cut nearest that point; the lowest v likewise, at the bottom point. Computed once per
-// Gaussian and tile, this replaces a test (a square root and a branch) per row. Rounding
-// margins keep the run a superset: the lanes' own alpha test decides what contributes.
+// when it reaches none. Cut to the strip of the tile's columns the reach (an ellipse, above)
+// stays convex, so the rows it reaches are one run, from the lowest to the highest v on the
+// cut. The ellipse's upper boundary v(u) = (-b u + sqrt(c q_max - det u^2)) / c is concave with
+// its maximum at the top point: its highest v on the cut is at the u of the cut nearest that
+// point; the lowest v likewise, at the bottom point. Computed once per Gaussian and tile, this
+// replaces a test (a square root and a branch) per row. Rounding margins keep the run a
+// superset: the lanes' own alpha test decides what contributes.
 inline bool narrow_to_tile_rows(float mx, float my, float a, float b, float c, float q_max,
-                                int px0, int py0, int& row0, int& row1) {
-    const float det = a * c - b * b;
-    if (!(det > 0.0f) || !(q_max > 0.0f)) return false;
+                                const Reach& reach, int px0, int py0, int& row0, int& row1) {
     constexpr float kMargin = 0.01f;  // pixels, against rounding
-    const float half_width = std::sqrt(c * q_max / det);
-    const float u0 = std::max(px0 + 0.5f - kMargin - mx, -half_width);
-    const float u1 = std::min(px0 + kTile - 0.5f + kMargin - mx, half_width);
+    const float u0 = std::max(px0 + 0.5f - kMargin - mx, -reach.half_width);
+    const float u1 = std::min(px0 + kTile - 0.5f + kMargin - mx, reach.half_width);
     if (!(u0 <= u1)) return false;
-    const float u_top = -b * std::sqrt(a * q_max / det) / a;
+    const float det = a * c - b * b, c_q_max = c * q_max;
     const auto boundary_root = [&](float u) {
-        return std::sqrt(std::max(c * q_max - det * u * u, 0.0f));
+        return std::sqrt(std::max(c_q_max - det * u * u, 0.0f));
     };
-    const float u_high = std::min(std::max(u_top, u0), u1);
-    const float u_low = std::min(std::max(-u_top, u0), u1);
-    const float v_high = (-b * u_high + boundary_root(u_high)) / c + kMargin;
-    const float v_low = (-b * u_low - boundary_root(u_low)) / c - kMargin;
+    const float u_high = std::min(std::max(reach.u_top, u0), u1);
+    const float u_low = std::min(std::max(-reach.u_top, u0), u1);
+    const float v_high = (-b * u_high + boundary_root(u_high)) * reach.inv_c + kMargin;
+    const float v_low = (-b * u_low - boundary_root(u_low)) * reach.inv_c - kMargin;
     // row r holds the pixel centres v = py0 + r + 0.5 - my; the bounds are clamped to a
     // tile's rows before conversion
     const float first = std::ceil(v_low + my - py0 - 0.5f);
@@ -97,8 +107,8 @@ inline bool narrow_to_tile_rows(float mx, float my, float a, float b, float c, f
     return row0 <= row1;
 }
 
-// One drawn Gaussian as the compositing passes read it: 52 bytes, aligned to a 64-byte cache
-// line so that reading one takes one line, not two for most of them.
+// One drawn Gaussian as the compositing passes read it: 64 bytes, aligned to a cache line so
+// that reading one takes one line.
 struct alignas(64) SplatRecord {
     float mx, my;     // mean in pixels
     float a, b, c;    // conic: q = a dx^2 + 2 b dx dy + c dy^2
@@ -107,7 +117,9 @@ struct alignas(64) SplatRecord {
     float log2_opacity;
     PixelBox box;     // inclusive pixel box of alpha >= kAlphaMin
     int32_t id;       // the Gaussian's index in the inputs
+    Reach reach;
 };
+static_assert(sizeof(SplatRecord) == 64, "a splat record fills one cache line");
 
 // Tile lists: tile t composites the drawn Gaussians of ranks[offsets[t] .. offsets[t+1]),
 // nearest first. A rank is a position in the depth order, and indexes copies of the drawn
@@ -122,6 +134,7 @@ struct TileBins {
     std::vector<int32_t> ranks;         // [total overlaps]
     std::vector<SplatRecord> splats;    // [drawn], nearest first
     std::vector<float> features;        // [drawn, C], nearest first
+    std::vector<float> background;      // [C], seen through the remaining transmittance
 };
 
 // One Gaussian as seen from one tile: what both compositing passes evaluate row by row.
@@ -147,7 +160,8 @@ struct SplatInTile {
         lane1 = box.x1 - px0 < kTile - 1 ? box.x1 - px0 : kTile - 1;
         // a box spilling over the tile's sides may miss the tile in some of its rows
         const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
-        if (spills && !narrow_to_tile_rows(mx, my, a, b, c, splat.q_max, px0, py0, row0, row1))
+        if (spills && !narrow_to_tile_rows(mx, my, a, b, c, splat.q_max, splat.reach, px0,
+                                              py0, row0, row1))
             row1 = row0 - 1;
     }
     // alpha in the registers R0 .. R0 + N - 1 of tile row offset dy.
@@ -201,8 +215,9 @@ TileBins bin_gaussians(const float* means2d, const float* conics, const float* o
                        const float* features, int64_t channels, const float* depths,
                        const int32_t* radii, int64_t n, int width, int height);
 
-// image [H, W, C], transmittance [H, W] and last_entry [H, W] (one past the list entry of each
-// pixel's last contributor) of the binned Gaussians.
+// image [H, W, C] (the Gaussians composited over bins.background), transmittance [H, W] and
+// last_entry [H, W] (one past the list entry of each pixel's last contributor) of the binned
+// Gaussians.
 void rasterize_forward(const TileBins& bins, int width, int height, float* image,
                        float* transmittance, int32_t* last_entry);
 

@@ -74,9 +74,11 @@ void rasterize_forward(const TileBins& bins, int width, int height, float* image
             for (int row = 0; row < kTile && py0 + row < height; ++row) {
                 for (int col = 0; col < kTile && px0 + col < width; ++col) {
                     const int64_t pixel = static_cast<int64_t>(py0 + row) * width + px0 + col;
+                    const float t = trans[row][col];
                     for (int64_t ch = 0; ch < channels; ++ch)
-                        image[pixel * channels + ch] = accum[ch * kTile + row][col];
-                    transmittance[pixel] = trans[row][col];
+                        image[pixel * channels + ch] =
+                            accum[ch * kTile + row][col] + t * bins.background[ch];
+                    transmittance[pixel] = t;
                     last_entry[pixel] = last[row][col];
                 }
             }

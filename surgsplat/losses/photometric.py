@@ -73,6 +73,7 @@ def photometric_loss(pred: Tensor, gt: Tensor, mask: Tensor, lambda_dssim: float
                      weights: Tensor | None = None) -> Tensor:
     """(1 - lambda) L1 + lambda D-SSIM over the masked pixels (3DGS uses lambda = 0.2);
     D-SSIM is not computed when lambda is 0. `weights` [H, W] weight the L1 term's pixels."""
+    pred = pred.contiguous()  # one copy for both terms (a render's colour is a strided view)
     loss = masked_l1(pred, gt, mask, weights)
     if lambda_dssim == 0:
         return loss

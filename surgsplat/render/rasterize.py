@@ -18,17 +18,20 @@ class _NativeRasterize(torch.autograd.Function):
     """Autograd wrapper of the native forward/backward kernels."""
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height, absgrad):
+    def forward(ctx, means2d, conics, opacities, features, depths, radii, background, width,
+                height, absgrad):
         native = native_module()
         inputs = [t.detach().contiguous() for t in (means2d, conics, opacities, features)]
         channels = features.shape[1]
+        if background is None:
+            background = torch.zeros(channels)
         image = torch.empty(height, width, channels)
         transmittance = torch.empty(height, width)
         last_entry = torch.empty(height, width, dtype=torch.int32)
         bins = native.rasterize_forward(
             *(t.numpy() for t in inputs), depths.detach().contiguous().numpy(),
-            radii.contiguous().numpy(), width, height, image.numpy(), transmittance.numpy(),
-            last_entry.numpy())
+            radii.contiguous().numpy(), background.detach().contiguous().numpy(), width, height,
+            image.numpy(), transmittance.numpy(), last_entry.numpy())
         ctx.bins, ctx.size, ctx.absgrad = bins, (width, height), absgrad
         ctx.save_for_backward(*inputs, transmittance, last_entry)
         return image, 1.0 - transmittance
@@ -49,7 +52,7 @@ class _NativeRasterize(torch.autograd.Function):
             abs_grad.numpy())
         if ctx.absgrad is not None:
             ctx.absgrad += abs_grad.norm(dim=1)
-        return (*grads, None, None, None, None, None)
+        return (*grads, None, None, None, None, None, None)
 
 
 
@@ -64,11 +67,14 @@ def check_finite(**tensors: Tensor) -> None:
 
 def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
               depths: Tensor, radii: Tensor, width: int, height: int,
-              absgrad: Tensor | None = None, backend: Backend = "auto") -> tuple[Tensor, Tensor]:
+              absgrad: Tensor | None = None, background: Tensor | None = None,
+              backend: Backend = "auto") -> tuple[Tensor, Tensor]:
     """Alpha-composite Gaussians front to back into (image [H,W,C], alpha [H,W]).
 
     means2d [N,2] pixels, conics [N,3] (a, b, c), opacities [N] in [0,1], features [N,C] (any C),
     depths [N] (sort key), radii [N] int (0 = culled: not drawn, no gradient).
+    background [C], when given, is composited behind the Gaussians: image + (1 - alpha) background
+    (data: it gets no gradient).
     absgrad [N], when given, receives during backward the per-Gaussian sum over pixels of the
     absolute screen-space gradient of the mean (the norm of the summed |dL/dx|, |dL/dy|).
     Raises ValueError on NaN/Inf inputs (project() keeps culled Gaussians finite).
@@ -76,13 +82,16 @@ def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tens
     if features.ndim != 2 or features.shape[0] != means2d.shape[0]:
         raise ValueError(f"rasterize: features must be [N, C] with N = {means2d.shape[0]}, "
                          f"got {tuple(features.shape)}")
+    if background is not None and background.shape != features.shape[1:]:
+        raise ValueError(f"rasterize: background must be [C] = [{features.shape[1]}], "
+                         f"got {tuple(background.shape)}")
     if width < 1 or height < 1:
         raise ValueError(f"rasterize: image size must be positive, got {width}x{height}")
     check_finite(means2d=means2d.detach(), conics=conics.detach(), opacities=opacities.detach(),
                  features=features.detach(), depths=depths.detach())
     if resolve_backend("rasterize", backend, [means2d, conics, opacities, features]) == "reference":
         return rasterize_reference(means2d, conics, opacities, features, depths, radii,
-                                   width, height, absgrad)
+                                   width, height, absgrad, background)
     radii = radii.to(torch.int32)
     return _NativeRasterize.apply(means2d, conics, opacities, features, depths, radii,
-                                  width, height, absgrad)
+                                  background, width, height, absgrad)

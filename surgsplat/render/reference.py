@@ -28,13 +28,26 @@ def pixel_centres(width: int, height: int, dtype: torch.dtype) -> Tensor:
 
 def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
                         depths: Tensor, radii: Tensor, width: int, height: int,
-                        absgrad: Tensor | None = None) -> tuple[Tensor, Tensor]:
+                        absgrad: Tensor | None = None,
+                        background: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """Composite Gaussians front to back -> (image [H,W,C], alpha [H,W]).
 
     means2d [N,2], conics [N,3], opacities [N], features [N,C], depths [N], radii [N] (0 = culled).
     absgrad [N], when given, gets sum over pixels of |d loss / d means2d| (per pixel, then the
     norm of the 2-vector) added during backward, the densification signal.
+    background [C], when given, is added behind the Gaussians: image + (1 - alpha) background.
     """
+    image, alpha = _composite(means2d, conics, opacities, features, depths, radii, width, height,
+                              absgrad)
+    if background is not None:
+        image = image + (1.0 - alpha)[..., None] * background.to(image)
+    return image, alpha
+
+
+def _composite(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
+               depths: Tensor, radii: Tensor, width: int, height: int,
+               absgrad: Tensor | None) -> tuple[Tensor, Tensor]:
+    """rasterize_reference without a background."""
     channels = features.shape[1]
     keep = torch.nonzero(radii > 0).squeeze(1)
     keep = keep[torch.argsort(depths[keep], stable=True)]

@@ -32,41 +32,35 @@ class RenderOutput:
 
 
 class _ColourAndDepth(torch.autograd.Function):
-    """colour [H, W, 3] = image[..., :3] + (1 - alpha) background and depth [H, W] =
-    image[..., 3] / max(alpha, MIN_ALPHA_FOR_DEPTH) from the rasterised image [H, W, C >= 4] and
-    alpha [H, W]; background [3] is data (None: black, the colour is a view of the image). The
-    backward is written out: autograd's chain (two zero-filled [H, W, C] gradients of the slices,
-    a broadcast product summed over the channels, the division's two terms) cost about twice as
+    """colour [H, W, 3] = image[..., :3] (a view: the rasteriser composited the background) and
+    depth [H, W] = image[..., 3] / max(alpha, MIN_ALPHA_FOR_DEPTH) from the rasterised image
+    [H, W, C >= 4] and alpha [H, W]. The backward is written out: autograd's chain (two
+    zero-filled [H, W, C] gradients of the slices, the division's two terms) cost about twice as
     many image-sized passes per training step; an output the loss does not use costs nothing."""
 
     @staticmethod
-    def forward(ctx, image: Tensor, alpha: Tensor,
-                background: Tensor | None) -> tuple[Tensor, Tensor]:
+    def forward(ctx, image: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
         ctx.set_materialize_grads(False)
         clamped = alpha.clamp_min(MIN_ALPHA_FOR_DEPTH)
-        colour = image[..., :3]
-        if background is not None:
-            colour = torch.addcmul(colour, (1.0 - alpha).unsqueeze(-1), background)
         depth = image[..., 3] / clamped
-        ctx.save_for_backward(alpha, clamped, depth, background)
+        ctx.save_for_backward(alpha, clamped, depth)
         ctx.channels = image.shape[-1]
-        return colour, depth
+        return image[..., :3], depth
 
     @staticmethod
     def backward(ctx, grad_colour: Tensor | None, grad_depth: Tensor | None):
-        alpha, clamped, depth, background = ctx.saved_tensors
+        alpha, clamped, depth = ctx.saved_tensors
         grad_image = alpha.new_zeros(*alpha.shape, ctx.channels)
-        grad_alpha = alpha.new_zeros(alpha.shape)
+        grad_alpha = None
         if grad_colour is not None:
             grad_image[..., :3] = grad_colour
-            if background is not None:
-                grad_alpha -= grad_colour @ background
         if grad_depth is not None:
             grad_depth_raw = grad_depth / clamped
             grad_image[..., 3] = grad_depth_raw
             # the clamp passes no gradient to alpha where alpha <= MIN_ALPHA_FOR_DEPTH
-            grad_alpha -= (grad_depth_raw * depth).masked_fill_(alpha <= MIN_ALPHA_FOR_DEPTH, 0.0)
-        return grad_image, grad_alpha, None
+            grad_alpha = -(grad_depth_raw * depth).masked_fill_(alpha <= MIN_ALPHA_FOR_DEPTH, 0.0)
+        return grad_image, grad_alpha
+
 
 def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colors: Tensor,
            K: Tensor, width: int, height: int, world_to_camera: Tensor | None = None,
@@ -92,12 +86,13 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
     for value in extras.values():
         channels.append(value.reshape(value.shape[0], -1))
     features = torch.cat(channels, dim=1)
+    if background is not None:  # behind the colour only: depth and extras fade to 0
+        background = torch.cat([background.to(features), features.new_zeros(features.shape[1] - 3)])
     image, alpha = rasterize(projection.means2d, projection.conics, opacities, features,
                              projection.depths, projection.radii, width, height,
-                             absgrad=absgrad, backend=backend)
+                             absgrad=absgrad, background=background, backend=backend)
 
-    color, depth = _ColourAndDepth.apply(image, alpha,
-                                         None if background is None else background.to(image))
+    color, depth = _ColourAndDepth.apply(image, alpha)
     out = RenderOutput(rgb=color, alpha=alpha, depth=depth, projection=projection)
     offset = 4
     for name, value in extras.items():

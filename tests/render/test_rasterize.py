@@ -16,13 +16,14 @@ needs_native = pytest.mark.skipif(native_loader.native_module() is None,
 DIFFERENTIABLE = ("means2d", "conics", "opacities", "features")
 
 
-def run(scene, backend, grad_seed=1):
+def run(scene, backend, grad_seed=1, background=None):
     """Forward and backward with a fixed random upstream gradient."""
     leaves = {k: scene[k].detach().clone().requires_grad_() for k in DIFFERENTIABLE}
     absgrad = torch.zeros(scene["means2d"].shape[0], dtype=scene["means2d"].dtype)
     image, alpha = rasterize(leaves["means2d"], leaves["conics"], leaves["opacities"],
                              leaves["features"], scene["depths"], scene["radii"],
-                             scene["width"], scene["height"], absgrad=absgrad, backend=backend)
+                             scene["width"], scene["height"], absgrad=absgrad,
+                             background=background, backend=backend)
     generator = torch.Generator().manual_seed(grad_seed)
     grad_image = torch.randn(image.shape, generator=generator, dtype=image.dtype)
     grad_alpha = torch.randn(alpha.shape, generator=generator, dtype=alpha.dtype)
@@ -67,6 +68,34 @@ def test_opaque_layers_stop_early_in_both(native_isa, scene_factory):
     assert (native[1] > 0.999).float().mean() > 0.5  # most pixels reached the stop
     for name in DIFFERENTIABLE:
         assert relative_error(native[2][name], reference[2][name]) < 1e-4, name
+
+
+@pytest.mark.parametrize("num,opacity,seed", [(300, None, 11), (500, 0.98, 12), (40, None, 13)])
+def test_background_matches_reference(native_isa, scene_factory, num, opacity, seed):
+    """A background [C] seen through the remaining transmittance: native == reference in the
+    image and in every gradient (through alpha), for sparse scenes where most of it shows, and
+    for opaque ones where compositing stops early; a zero background changes nothing."""
+    scene = scene_factory(num, 37, 29, channels=4, seed=seed, scale=0.4 if opacity else 0.12)
+    if opacity is not None:
+        scene["opacities"] = torch.full_like(scene["opacities"], opacity)
+    background = torch.tensor([0.9, -0.4, 0.3, 2.0])
+    native = run(scene, "native", background=background)
+    reference = run(scene, "reference", background=background)
+    assert (native[0] - reference[0]).abs().max() < 1e-5
+    for name in DIFFERENTIABLE:
+        assert relative_error(native[2][name], reference[2][name]) < 1e-4, name
+    assert relative_error(native[3], reference[3]) < 1e-4
+    plain, black = run(scene, "native"), run(scene, "native", background=torch.zeros(4))
+    assert torch.equal(plain[0], black[0])
+    assert (native[0] - plain[0]).abs().max() > 0.1  # the background shows
+    for name in DIFFERENTIABLE:
+        assert torch.equal(plain[2][name], black[2][name]), name
+
+
+def test_background_shape_is_checked(scene_factory):
+    scene = scene_factory(10, 16, 16)
+    with pytest.raises(ValueError, match="background must be"):
+        run(scene, "auto", background=torch.zeros(4))
 
 
 @pytest.mark.parametrize("backend", ["reference", pytest.param("native", marks=needs_native)])

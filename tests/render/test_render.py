@@ -79,10 +79,9 @@ def test_extras_are_blended_like_colour():
 
 
 def test_colour_and_depth_gradients_match_autograds_composition():
-    """The written-out backward of the colour-over-background and depth normalisation equals
+    """The written-out backward of the colour view and the depth normalisation equals
     autograd's gradient of the same expression (float64, 1e-12), including pixels whose alpha
-    is below the depth clamp, when only one of the two outputs is used, and without a
-    background."""
+    is below the depth clamp, and when only one of the two outputs is used."""
     generator = torch.Generator().manual_seed(3)
     image = torch.rand(7, 5, 6, generator=generator, dtype=torch.float64)
     alpha = torch.rand(7, 5, generator=generator, dtype=torch.float64)
@@ -90,17 +89,14 @@ def test_colour_and_depth_gradients_match_autograds_composition():
     grad_colour = torch.randn(7, 5, 3, generator=generator, dtype=torch.float64)
     grad_depth = torch.randn(7, 5, generator=generator, dtype=torch.float64)
 
-    def composed(i, a, background):
-        colour = i[..., :3] if background is None else i[..., :3] + (1.0 - a)[..., None] * background
-        return colour, i[..., 3] / a.clamp_min(MIN_ALPHA_FOR_DEPTH)
+    def composed(i, a):
+        return i[..., :3], i[..., 3] / a.clamp_min(MIN_ALPHA_FOR_DEPTH)
 
-    cases = [(use, background) for use in ("both", "colour", "depth")
-             for background in (torch.tensor([0.2, 0.5, 0.9], dtype=torch.float64), None)]
-    for use, background in cases:
+    for use in ("both", "colour", "depth"):
         grads = []
         for fn in (_ColourAndDepth.apply, composed):
             i, a = image.clone().requires_grad_(), alpha.clone().requires_grad_()
-            colour, depth = fn(i, a, background)
+            colour, depth = fn(i, a)
             loss = ((colour * grad_colour).sum() if use != "depth" else 0.0) + \
                    ((depth * grad_depth).sum() if use != "colour" else 0.0)
             loss.backward()
