@@ -28,6 +28,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import surgsplat  # noqa: F401  (before torch: sets surgsplat's OpenMP wait policy)
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+import surgsplat  # noqa: F401  (before torch: sets OpenMP's wait policy, see surgsplat/__init__)
+
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 

@@ -23,6 +23,8 @@ from typing import Literal
 import torch
 from torch import Tensor
 
+import surgsplat
+
 Backend = Literal["auto", "native", "reference"]
 """Which implementation of an op runs: `auto` is native when it can run the inputs."""
 
@@ -145,7 +147,7 @@ def system_info() -> dict[str, object]:
         "available_isas": available_isas(),
         "torch_threads": torch.get_num_threads(),
         "native_threads": None if native is None else native.max_threads(),
-        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "(unset)"),
+        "omp_wait_policy": surgsplat.OPENMP_WAIT_POLICY,
     }
 
 
