@@ -162,7 +162,6 @@ def anchor_weights(points: np.ndarray, anchors: np.ndarray,
     return index, weights / weights.sum(axis=1, keepdims=True)
 
 
-
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """[V, 3] unit normals: the area-weighted sum of the normals of each vertex's faces
     (zero for an unused vertex)."""

@@ -146,7 +146,6 @@ class _NativeProject(torch.autograd.Function):
         return (*grads, None)
 
 
-
 def _native_project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int,
                     height: int, world_to_camera: Tensor, near: float,
                     lowpass: float) -> Projection:

@@ -55,7 +55,6 @@ class _NativeRasterize(torch.autograd.Function):
         return (*grads, None, None, None, None, None, None)
 
 
-
 def check_finite(**tensors: Tensor) -> None:
     """ValueError naming the first input with NaN or Inf entries (one reduction per tensor on
     the fast path: a finite sum means finite entries, barring float overflow)."""

@@ -140,7 +140,6 @@ def test_native_score_matches_reference_value_and_gradients(native_isa, masked):
         assert want.grad.abs().max().item() > 1e-4  # not vacuous
 
 
-
 def test_zero_unmasked_native_matches_masked_images(native_isa):
     # zero_unmasked masks both images inside the kernel: the same score and gradients (float64
     # reference, 1e-5 and 1e-6) as the reference SSIM of the images multiplied by the mask, and
