@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.surgsplat-installed
 NATIVE_SOURCES := $(wildcard csrc/*.cpp csrc/*.h csrc/*/*.cpp csrc/*/*.h) CMakeLists.txt pyproject.toml
 
-.PHONY: demo test install clean
+.PHONY: demo test install clean aarch64-sysroot
 
 install: $(STAMP)
 
@@ -24,6 +24,20 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# Debian's arm64 Python 3.11 and NumPy, unpacked (not installed) for tests/render/test_neon_replay.py,
+# which runs the cross-compiled NEON kernels under qemu-aarch64 on an x86-64 host (needs root).
+AARCH64_SYSROOT := build/aarch64-sysroot
+AARCH64_PACKAGES := python3.11-minimal libpython3.11-minimal libpython3.11-stdlib libpython3.11-dev \
+	python3-numpy libc6 libgcc-s1 libstdc++6 libgomp1 zlib1g libexpat1 libffi8 libblas3 \
+	liblapack3 libgfortran5
+aarch64-sysroot:
+	dpkg --add-architecture arm64 && apt-get update -qq
+	rm -rf $(AARCH64_SYSROOT).partial && mkdir -p $(AARCH64_SYSROOT).partial/debs
+	cd $(AARCH64_SYSROOT).partial/debs && apt-get download -qq $(AARCH64_PACKAGES:%=%:arm64)
+	for deb in $(AARCH64_SYSROOT).partial/debs/*.deb; do dpkg -x $$deb $(AARCH64_SYSROOT).partial; done
+	rm -rf $(AARCH64_SYSROOT).partial/debs $(AARCH64_SYSROOT)
+	mv $(AARCH64_SYSROOT).partial $(AARCH64_SYSROOT)
 
 clean:
 	rm -rf build $(VENV)
