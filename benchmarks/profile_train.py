@@ -3,7 +3,7 @@ frames of the main thread, waiting included) and sums the samples by part of the
 
     pip install py-spy
     python benchmarks/profile_train.py --data PHANTOM [--method deform3dgs] [--iters 100]
-                                       [--rate 200] [--out FILE] [--set KEY=VALUE ...]
+                                       [--rate 25] [--out FILE] [--set KEY=VALUE ...]
 
 Only the main thread's samples count (OpenMP workers and other threads only wait for it or work
 for it). A sample counts for the first category (in the order of CATEGORIES) one of whose
@@ -64,7 +64,9 @@ def main() -> None:
                         help="scene folder (a phantom or an imported clip)")
     parser.add_argument("--method", default="deform3dgs")
     parser.add_argument("--iters", type=int, default=100)
-    parser.add_argument("--rate", type=int, default=200, help="samples per second")
+    parser.add_argument("--rate", type=int, default=25,
+                        help="samples per second; each native sample stops the run while py-spy "
+                             "unwinds it (at 200 on 2 cores the run got 7 %% of a core)")
     parser.add_argument("--step-marker", default="Trainer.step",
                         help="a frame every stack inside a training step has")
     parser.add_argument("--out", type=Path)
