@@ -73,21 +73,22 @@ double ssim_forward(In<float> pred, In<float> gt, In<float> taps, float c1, floa
 
 void ssim_backward(In<float> pred, In<float> gt, In<float> moments, In<float> taps, float c1,
                    float c2, std::optional<In<float>> grad_map, std::optional<In<float>> weights,
-                   float grad_score, std::optional<In<float>> image_mask, Out<float> grad_pred,
-                   Out<float> grad_gt) {
+                   float grad_score, std::optional<In<float>> image_mask,
+                   std::optional<Out<float>> grad_pred, std::optional<Out<float>> grad_gt) {
     const Image s = check_images(pred, gt);
     const int radius = check_taps(taps);
     expect_size(moments, 4 * pred.size(), "moments");
     if (grad_map) expect_size(*grad_map, pred.size(), "grad_map");
     const surgsplat::SsimUpstream upstream{grad_map ? grad_map->data() : nullptr,
                                            pixel_map(weights, s, "weights"), grad_score};
-    expect_size(grad_pred, pred.size(), "grad_pred");
-    expect_size(grad_gt, pred.size(), "grad_gt");
+    if (grad_pred) expect_size(*grad_pred, pred.size(), "grad_pred");
+    if (grad_gt) expect_size(*grad_gt, pred.size(), "grad_gt");
     nb::gil_scoped_release unlocked;
     surgsplat::ssim_backward(pred.data(), gt.data(), moments.data(), s.height, s.width,
                              s.channels, taps.data(), radius, c1, c2, upstream,
-                             pixel_map(image_mask, s, "image_mask"), grad_pred.data(),
-                             grad_gt.data());
+                             pixel_map(image_mask, s, "image_mask"),
+                             grad_pred ? grad_pred->data() : nullptr,
+                             grad_gt ? grad_gt->data() : nullptr);
 }
 
 }  // namespace
@@ -107,8 +108,8 @@ void bind_blur(nb::module_& m) {
     m.def("ssim_backward", &ssim_backward, nb::arg("pred"), nb::arg("gt"), nb::arg("moments"),
           nb::arg("taps"), nb::arg("c1"), nb::arg("c2"), nb::arg("grad_map").none(),
           nb::arg("weights").none(), nb::arg("grad_score"), nb::arg("image_mask").none(),
-          nb::arg("grad_pred"), nb::arg("grad_gt"),
-          "Gradients [H, W, C] with respect to pred and gt of a loss whose gradient with "
-          "respect to the map is grad_map [H, W, C], or if None grad_score * weights (the "
-          "backward of the score), with the forward's image_mask.");
+          nb::arg("grad_pred").none(), nb::arg("grad_gt").none(),
+          "Gradients [H, W, C] with respect to pred and gt (each skipped when None) of a loss "
+          "whose gradient with respect to the map is grad_map [H, W, C], or if None "
+          "grad_score * weights (the backward of the score), with the forward's image_mask.");
 }

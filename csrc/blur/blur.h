@@ -153,8 +153,9 @@ struct SsimUpstream {
     float grad_score;
 };
 
-// Gradients of L with respect to pred and gt [height, width, channels], given the moments
-// written by ssim_forward with the same image_mask.
+// Gradients of L with respect to pred and gt [height, width, channels] (either not computed
+// when its pointer is null), given the moments written by ssim_forward with the same
+// image_mask.
 void ssim_backward(const float* pred, const float* gt, const float* moments, int64_t height,
                    int64_t width, int64_t channels, const float* taps, int radius, float c1,
                    float c2, const SsimUpstream& upstream, const float* image_mask,

@@ -89,15 +89,13 @@ void ssim_grad_row(MomentRow m, const float* __restrict u, int64_t width, float 
     }
 }
 
-// x enters S through mx, x^2 + y^2 and xy; y through my, x^2 + y^2 and xy.
-void chain_row(const float* __restrict a, const float* __restrict b, const float* __restrict hx,
-               const float* __restrict hy, const float* __restrict hsq,
-               const float* __restrict hxy, int64_t width, float* __restrict da,
-               float* __restrict db) {
-    for (int64_t x = 0; x < width; ++x) {
-        da[x] = hx[x] + 2.0f * a[x] * hsq[x] + b[x] * hxy[x];
-        db[x] = hy[x] + 2.0f * b[x] * hsq[x] + a[x] * hxy[x];
-    }
+// dL/da for an image a that enters S through its mean (the blurred gradient h_mean), x^2 + y^2
+// (hsq) and the product with the other image b (hxy): for x, h_mean = hx and b = y; for y, the
+// reverse.
+void chain_row(const float* __restrict a, const float* __restrict b,
+               const float* __restrict h_mean, const float* __restrict hsq,
+               const float* __restrict hxy, int64_t width, float* __restrict da) {
+    for (int64_t x = 0; x < width; ++x) da[x] = h_mean[x] + 2.0f * a[x] * hsq[x] + b[x] * hxy[x];
 }
 
 // sum_x w[x] v[x] (w null: all ones): float partial sums in 16 lanes, then double.
@@ -162,9 +160,9 @@ struct BackwardWorker {
     const float *pred, *gt, *moments;
     SsimUpstream upstream;
     const float* image_mask;
-    float *grad_pred, *grad_gt;
+    float *grad_pred, *grad_gt;  // either null when not wanted
     float c1, c2;
-    std::vector<float> scratch;  // four rows: dL/dS / x, y, dL/dx, dL/dy
+    std::vector<float> scratch;  // three rows: dL/dS / x, y, an image's gradient
 
     void load(int64_t c, int64_t y, float* const* rows) {
         const int64_t width = layout.width;
@@ -182,18 +180,24 @@ struct BackwardWorker {
     }
 
     void store(int64_t c, int64_t y, const float* const* rows) {
-        const int64_t width = layout.width, channels = layout.channels;
-        float *a = scratch.data(), *b = a + width, *da = b + width, *db = da + width;
-        gather(layout.image_row(pred, c, y), channels, width, a);
-        gather(layout.image_row(gt, c, y), channels, width, b);
+        const int64_t width = layout.width;
+        float *a = scratch.data(), *b = a + width;
+        gather(layout.image_row(pred, c, y), layout.channels, width, a);
+        gather(layout.image_row(gt, c, y), layout.channels, width, b);
         // the images were masked before filtering: the chain rule masks their gradients too
         mask_row(a, image_mask, y, width);
         mask_row(b, image_mask, y, width);
-        chain_row(a, b, rows[0], rows[1], rows[2], rows[3], width, da, db);
-        mask_row(da, image_mask, y, width);
-        mask_row(db, image_mask, y, width);
-        scatter(da, channels, width, layout.image_row(grad_pred, c, y));
-        scatter(db, channels, width, layout.image_row(grad_gt, c, y));
+        if (grad_pred != nullptr) store_gradient(a, b, rows[0], rows, c, y, grad_pred);
+        if (grad_gt != nullptr) store_gradient(b, a, rows[1], rows, c, y, grad_gt);
+    }
+
+    void store_gradient(const float* image, const float* other, const float* h_mean,
+                        const float* const* rows, int64_t c, int64_t y, float* grad) {
+        const int64_t width = layout.width;
+        float* row = scratch.data() + 2 * width;
+        chain_row(image, other, h_mean, rows[2], rows[3], width, row);
+        mask_row(row, image_mask, y, width);
+        scatter(row, layout.channels, width, layout.image_row(grad, c, y));
     }
 };
 
@@ -221,7 +225,7 @@ void ssim_backward(const float* pred, const float* gt, const float* moments, int
     const Layout layout{height, width, channels};
     blur_streamed(channels, 4, height, width, taps, radius, [&] {
         return BackwardWorker{layout, pred, gt, moments, upstream, image_mask, grad_pred,
-                              grad_gt, c1, c2, std::vector<float>(4 * width)};
+                              grad_gt, c1, c2, std::vector<float>(3 * width)};
     });
 }
 

@@ -48,14 +48,16 @@ def _native_backward(ctx, grad_map: Tensor | None, weights: Tensor | None, grad_
                      image_mask: Tensor | None = None) -> tuple[Tensor | None, Tensor | None]:
     """Gradients for pred and gt (None where not needed) from the saved forward state."""
     pred, gt, moments, taps = ctx.saved_tensors[:4]
-    grad_pred, grad_gt = torch.empty_like(pred), torch.empty_like(gt)
+    grad_pred, grad_gt = (torch.empty_like(image) if needed else None
+                          for image, needed in zip((pred, gt), ctx.needs_input_grad[:2]))
     native_blur_module().ssim_backward(
         pred.numpy(), gt.numpy(), moments.numpy(), taps.numpy(), C1, C2,
         None if grad_map is None else grad_map.contiguous().numpy(),
         None if weights is None else weights.numpy(), grad_score,
-        None if image_mask is None else image_mask.numpy(), grad_pred.numpy(), grad_gt.numpy())
-    return (grad_pred if ctx.needs_input_grad[0] else None,
-            grad_gt if ctx.needs_input_grad[1] else None)
+        None if image_mask is None else image_mask.numpy(),
+        None if grad_pred is None else grad_pred.numpy(),
+        None if grad_gt is None else grad_gt.numpy())
+    return grad_pred, grad_gt
 
 
 class _NativeSSIMMap(torch.autograd.Function):

@@ -231,7 +231,8 @@ class Trainer:
         terms = self.model.losses(context, frozenset(weights))
         loss = sum(weights[name] * value for name, value in terms.items())
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        if loss.requires_grad:  # not when every active term is a constant 0 on this frame
+            loss.backward()
         screen_grad = absgrad * (0.5 * max(camera.width, camera.height))
         densify_weights = self.model.densify_weights(context)
         if densify_weights is not None:

@@ -118,6 +118,27 @@ def test_native_matches_reference_map_and_gradients(native_isa, height, width, c
         assert (got.grad.double() - want.grad).abs().max().item() < 1e-5 * max(scale, 1.0)
 
 
+@pytest.mark.parametrize("zero_unmasked", [False, True])
+def test_native_backward_computes_only_the_gradients_asked_for(native_isa, zero_unmasked):
+    """One image without requires_grad gets no gradient; the other's is the same as when both
+    are asked for (the kernel skips the unwanted image's chain rule)."""
+    generator = torch.Generator().manual_seed(9)
+    gt = torch.rand(23, 41, 3, generator=generator)
+    pred = (gt + 0.1 * torch.randn(gt.shape, generator=generator)).clamp(0, 1)
+    mask = torch.rand(23, 41, generator=generator) > 0.3
+
+    def gradients(wanted: tuple[bool, bool]) -> list:
+        images = [t.clone().requires_grad_(w) for t, w in zip((pred, gt), wanted)]
+        ssim(*images, mask, zero_unmasked=zero_unmasked).backward()
+        return [image.grad for image in images]
+
+    both = gradients((True, True))
+    assert all(g is not None and g.abs().max() > 0 for g in both)
+    only_pred, only_gt = gradients((True, False)), gradients((False, True))
+    assert only_pred[1] is None and torch.equal(only_pred[0], both[0])
+    assert only_gt[0] is None and torch.equal(only_gt[1], both[1])
+
+
 @pytest.mark.parametrize("masked", [False, True])
 def test_native_score_matches_reference_value_and_gradients(native_isa, masked):
     # the native score sums the (masked) map inside the kernel; the reference takes its mean

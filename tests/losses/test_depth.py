@@ -1,10 +1,13 @@
 """Depth L1, (median-scaled) inverse-depth L1 and scale-invariant log-depth L1 over tissue
 pixels with a measured depth."""
 
+from types import SimpleNamespace
+
 import pytest
 import torch
 
-from surgsplat.losses.depth import depth_l1, inverse_depth_l1, scale_invariant_depth_l1
+from surgsplat.losses.depth import (DepthLoss, DepthLossConfig, depth_l1, inverse_depth_l1,
+                                   scale_invariant_depth_l1)
 
 
 def depths(dtype=torch.float32):
@@ -69,3 +72,13 @@ def test_scale_invariant_form_ignores_the_scale_of_the_measured_depth():
     torch.testing.assert_close(scale_invariant_depth_l1(pred, 7.5 * gt, mask), expected)
     assert float(scale_invariant_depth_l1(0.02 * gt, gt, mask)) < 1e-6
     assert float(scale_invariant_depth_l1(pred, gt, mask)) > 0.05
+
+
+def test_a_frame_without_depth_gives_a_constant_zero():
+    """Nothing to compare: the term is 0 and not part of the graph, so the backward does not
+    run through the depth map."""
+    rendered = torch.rand(4, 5, requires_grad=True)
+    context = SimpleNamespace(frame=SimpleNamespace(depth=None),
+                              output=SimpleNamespace(depth=rendered))
+    term = DepthLoss(DepthLossConfig()).losses(context, frozenset({"depth"}))["depth"]
+    assert term.item() == 0.0 and not term.requires_grad

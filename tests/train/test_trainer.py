@@ -111,3 +111,25 @@ def test_training_with_known_moving_poses(tmp_path):
     metrics = evaluate_run(load_trained_run(tmp_path / "run"), EvalOptions())
     assert metrics["psnr_tissue"] > 20.0
     assert metrics["p2s_median_mm"] < 1.0  # points were back-projected with the frames' poses
+
+
+def test_frames_without_depth_cost_no_depth_backward(small_phantom, tmp_path):
+    """The depth term of a frame without a measured depth is a constant 0 (nothing flows back
+    through the depth map), and a step whose active terms are all constant changes nothing."""
+    import shutil
+    shutil.copytree(small_phantom, tmp_path / "scene")
+    shutil.rmtree(tmp_path / "scene" / "depth")
+    scene = load_scene(tmp_path / "scene")
+    assert all(frame.depth is None for frame in scene.frames)
+
+    trainer = Trainer(small_config("deform3dgs", 5), scene, tmp_path / "both")
+    stats = trainer.step()
+    assert stats.terms["depth"] == 0.0 and stats.terms["photometric"] > 0.0
+
+    config = small_config("deform3dgs", 5)
+    config.losses["photometric"].weight = 0.0
+    only_depth = Trainer(config, scene, tmp_path / "only_depth")
+    before = {k: v.detach().clone() for k, v in only_depth.model.gaussians.params.items()}
+    assert only_depth.step().loss == 0.0
+    after = only_depth.model.gaussians.params
+    assert all(torch.equal(after[k].detach(), v) for k, v in before.items())
