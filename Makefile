@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.surgsplat-installed
 NATIVE_SOURCES := $(wildcard csrc/*.cpp csrc/*.h csrc/*/*.cpp csrc/*/*.h) CMakeLists.txt pyproject.toml
 
-.PHONY: demo test install clean aarch64-sysroot
+.PHONY: demo test install clean aarch64-sysroot x86-64-v4-guest
 
 install: $(STAMP)
 
@@ -38,6 +38,18 @@ aarch64-sysroot:
 	for deb in $(AARCH64_SYSROOT).partial/debs/*.deb; do dpkg -x $$deb $(AARCH64_SYSROOT).partial; done
 	rm -rf $(AARCH64_SYSROOT).partial/debs $(AARCH64_SYSROOT)
 	mv $(AARCH64_SYSROOT).partial $(AARCH64_SYSROOT)
+
+# Debian's x86-64 kernel, for tests/render/test_simd_primitives.py, which boots it in Bochs'
+# Skylake-X model to run the AVX-512 check on a CPU without AVX-512.
+X86_64_V4_GUEST := build/x86-64-v4-guest
+x86-64-v4-guest:
+	rm -rf $(X86_64_V4_GUEST).partial && mkdir -p $(X86_64_V4_GUEST).partial
+	cd $(X86_64_V4_GUEST).partial && apt-get download -qq \
+		$$(apt-cache depends linux-image-amd64 | awk '/Depends: linux-image-/ {print $$2; exit}')
+	dpkg --fsys-tarfile $(X86_64_V4_GUEST).partial/linux-image-*.deb \
+		| tar -xO --wildcards './boot/vmlinuz-*' > $(X86_64_V4_GUEST).partial/vmlinuz
+	rm -f $(X86_64_V4_GUEST).partial/*.deb && rm -rf $(X86_64_V4_GUEST)
+	mv $(X86_64_V4_GUEST).partial $(X86_64_V4_GUEST)
 
 clean:
 	rm -rf build $(VENV)
