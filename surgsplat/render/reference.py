@@ -35,12 +35,13 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, feat
     means2d [N,2], conics [N,3], opacities [N], features [N,C], depths [N], radii [N] (0 = culled).
     absgrad [N], when given, gets sum over pixels of |d loss / d means2d| (per pixel, then the
     norm of the 2-vector) added during backward, the densification signal.
-    background [C], when given, is added behind the Gaussians: image + (1 - alpha) background.
+    background [C], when given, is added behind the Gaussians: image + (1 - alpha) background
+    (data, as in the native kernel: it gets no gradient).
     """
     image, alpha = _composite(means2d, conics, opacities, features, depths, radii, width, height,
                               absgrad)
     if background is not None:
-        image = image + (1.0 - alpha)[..., None] * background.to(image)
+        image = image + (1.0 - alpha)[..., None] * background.detach().to(image)
     return image, alpha
 
 
