@@ -1,9 +1,9 @@
 """Writes the README's benchmark tables from the benchmark results: every
 benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of README.md, for the
-benchmarks bench_render, bench_train, bench_threads, bench_outputs, bench_auto_masks,
-bench_shading_depth, bench_batch, bench_long_clip and bench_articulation, and for every suite of bench_methods
-whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
+benchmarks bench_render, bench_train, bench_densify_split, bench_threads, bench_outputs,
+bench_auto_masks, bench_shading_depth, bench_batch, bench_long_clip and bench_articulation, and
+for every suite of bench_methods whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
 hand.
 
     python benchmarks/readme_tables.py [--check]
@@ -262,7 +262,27 @@ def train_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def densify_split_table(report: dict) -> str:
+    """Markdown for one bench_densify_split report: one row per split mode."""
+    rows = report["rows"]
+    lines = [
+        f"{report['cpu']}, {report['date'][:10]}, `{report['preset']}` on the full pulling "
+        f"phantom, {rows[0]['iterations']} iterations:",
+        "",
+        "| split | test psnr_tissue change across each densifying step, dB | mean dB "
+        "| first iteration at 35 dB | final test psnr_tissue | Gaussians |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        changes = ", ".join(f"{step['change_db']:+.2f}" for step in row["densifying_steps"])
+        lines.append(f"| {row['split']} | {changes} | {cell(row, 'mean_change_db', '+.2f')} "
+                     f"| {row['iteration_to_35db'] or 'not reached'} "
+                     f"| {cell(row, 'final_test_psnr_tissue', '.2f')} | {row['num_gaussians']} |")
+    return "\n".join(lines)
+
+
 RENDERERS = {"bench_render": render_table, "bench_train": train_table,
+             "bench_densify_split": densify_split_table,
              "bench_threads": render_threads_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
              "bench_shading_depth": shading_depth_table, "bench_batch": methods_table,

@@ -117,16 +117,27 @@ class DensifyStrategy:
         logits[index] = torch.logit(shared.clamp(1e-6, 1.0 - 1e-6))
 
     def _split_rows(self, model: GaussianModel, index: Tensor) -> dict[str, Tensor]:
-        """Two children per parent, positioned by sampling the parent's Gaussian."""
+        """Two children per parent of `index` [K], each parent's pair adjacent; placed as
+        DensifyConfig.split says."""
         params = {name: value[index] for name, value in model.params.items()}
-        scales = params["log_scales"].exp()
-        quats = torch.nn.functional.normalize(params["quats"], dim=-1)
-        rotation = quaternion_to_matrix(quats)
         children = {name: value.repeat_interleave(2, dim=0) for name, value in params.items()}
-        offsets = torch.randn(index.numel() * 2, 3) * scales.repeat_interleave(2, dim=0)
-        rotated = (rotation.repeat_interleave(2, dim=0) @ offsets[..., None])[..., 0]
-        children["means"] = children["means"] + rotated
-        children["log_scales"] = children["log_scales"] - math.log(self.config.split_factor)
+        scales = params["log_scales"].exp()  # [K, 3]
+        rotation = quaternion_to_matrix(params["quats"])  # [K, 3, 3], columns: the local axes
+        shrink = 1.0 / self.config.split_factor
+        if self.config.split == "long_axis":
+            axis = scales.argmax(dim=1)  # [K]
+            direction = rotation[torch.arange(index.numel()), :, axis]  # [K, 3]
+            reach = scales.gather(1, axis[:, None]) * math.sqrt(1.0 - shrink ** 2)  # [K, 1]
+            offsets = torch.stack([direction * reach, -direction * reach], dim=1).reshape(-1, 3)
+            log_scales = children["log_scales"].clone()
+            rows = torch.arange(2 * index.numel())
+            log_scales[rows, axis.repeat_interleave(2)] += math.log(shrink)
+        else:
+            local = torch.randn(index.numel() * 2, 3) * scales.repeat_interleave(2, dim=0)
+            offsets = (rotation.repeat_interleave(2, dim=0) @ local[..., None])[..., 0]
+            log_scales = children["log_scales"] + math.log(shrink)
+        children["means"] = children["means"] + offsets
+        children["log_scales"] = log_scales
         return children
 
     @torch.no_grad()

@@ -1,11 +1,14 @@
 """Densification: clone small, split large, prune transparent, reset opacity."""
 
+import dataclasses
 import math
 
 import torch
+from torch import Tensor
 
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.methods.settings import DensifyConfig
+from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.strategy import DensifyStrategy
 
 
@@ -83,3 +86,46 @@ def test_prune_and_clone_act_on_the_rendered_opacity_with_a_factor():
     rendered = torch.sigmoid(model.params["opacity_logits"]) * 0.5
     assert torch.allclose(1 - (1 - rendered[0]) * (1 - rendered[1]), torch.tensor(0.45),
                           atol=1e-5)
+
+
+def split_one(scales: list[float], quat: list[float],
+              split: str) -> tuple[GaussianModel, Tensor]:
+    """Split the single Gaussian of a model (extent 100: scale above 1 is large); returns the
+    model, now its two children, and the parent's covariance [3, 3]."""
+    model, optimizer = setup([0.0], [0.9])
+    with torch.no_grad():
+        model.params["log_scales"][0] = torch.tensor(scales).log()
+        model.params["quats"][0] = torch.tensor(quat)
+    rotation = quaternion_to_matrix(model.params["quats"][0].detach())
+    covariance = rotation @ torch.diag(torch.tensor(scales) ** 2) @ rotation.T
+    config = dataclasses.replace(CONFIG, split=split)
+    strategy = DensifyStrategy(config, scene_extent=100.0, max_gaussians=100)
+    strategy.step_post_backward(1, model, optimizer, torch.ones(1), torch.ones(1))
+    assert model.num_gaussians == 2
+    return model, covariance
+
+
+def test_long_axis_split_keeps_the_parents_mean_and_covariance():
+    # scales 3, 1.5, 2 rotated: the children sit along the rotated x axis, only that axis shrinks,
+    # and their equal mixture has the parent's mean and covariance (tolerance 1e-4 relative)
+    quat = [0.9, 0.2, -0.3, 0.25]
+    model, parent_covariance = split_one([3.0, 1.5, 2.0], quat, "long_axis")
+    means = model.params["means"].detach()
+    assert torch.allclose(means.mean(dim=0), torch.tensor([0.0, 1.0, 2.0]), atol=1e-5)
+    scales = model.params["log_scales"].detach().exp()
+    assert torch.allclose(scales, torch.tensor([[3.0 / 1.6, 1.5, 2.0]] * 2), rtol=1e-5)
+    rotation = quaternion_to_matrix(model.params["quats"][0].detach())
+    offset = means[0] - means.mean(dim=0)
+    assert torch.allclose(offset, rotation[:, 0] * 3.0 * math.sqrt(1 - 1 / 1.6 ** 2), atol=1e-5)
+    child_covariance = rotation @ torch.diag(scales[0] ** 2) @ rotation.T
+    mixture = child_covariance + torch.outer(offset, offset)
+    assert torch.allclose(mixture, parent_covariance, rtol=1e-4, atol=1e-4)
+
+
+def test_sample_split_shrinks_every_axis_around_random_points():
+    torch.manual_seed(0)
+    model, _ = split_one([3.0, 1.5, 2.0], [1.0, 0.0, 0.0, 0.0], "sample")
+    scales = model.params["log_scales"].detach().exp()
+    assert torch.allclose(scales, torch.tensor([[3.0, 1.5, 2.0]] * 2) / 1.6, rtol=1e-5)
+    means = model.params["means"].detach()
+    assert not torch.allclose(means[0] + means[1], torch.tensor([0.0, 2.0, 4.0]), atol=1e-3)
