@@ -159,7 +159,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--out", type=Path, default=None, help="result file (default "
-                        "benchmarks/results/bench_auto_masks-<cpu>.json)")
+                        "benchmarks/results/bench_auto_masks-<cpu>-<best ISA>.json)")
     parser.add_argument("--overlays", type=Path, default=None,
                         help="write every 6th frame with its mask overlaid here")
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",

@@ -58,7 +58,7 @@ def main() -> None:
     parser.add_argument("--cpus", type=int, default=1)
     parser.add_argument("--work", type=Path)
     parser.add_argument("--out", type=Path, help="JSON file (default: "
-                        "benchmarks/results/bench_batch-<cpu>.json)")
+                        "benchmarks/results/bench_batch-<cpu>-<best ISA>.json)")
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="bench_batch-"))
     phantom = work / "phantom"
@@ -92,7 +92,7 @@ def main() -> None:
               "columns": ["clips", "wall_seconds", "overhead_share"], "rows": rows,
               "target": {"overhead_share": 0.10}}
     print(json.dumps(report, indent=2))
-    out = args.out or results_path("bench_batch", info["cpu"])
+    out = args.out or results_path("bench_batch", info)
     out.write_text(json.dumps(report, indent=2) + "\n")
     print(f"results: {out}")
 

@@ -10,7 +10,7 @@ of the preset at its default settings otherwise. Reported: the test psnr_tissue 
 densifying step (at iteration k - 1 and k, where k densifies), the curve every --curve-every
 iterations (points that fall on a densifying step are right after it) and the first iteration
 at or above 35 dB. Quality per iteration does not depend on the machine; seconds are not
-reported. Results go to benchmarks/results/bench_densify_split-<cpu>.json.
+reported. Results go to benchmarks/results/bench_densify_split-<cpu>-<best ISA>.json.
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ def main() -> None:
     parser.add_argument("--work", type=Path,
                         default=Path(tempfile.gettempdir()) / "surgsplat-bench-split")
     parser.add_argument("--out", type=Path, help="JSON file (default: "
-                        "benchmarks/results/bench_densify_split-<cpu>.json)")
+                        "benchmarks/results/bench_densify_split-<cpu>-<best ISA>.json)")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     phantom = args.phantom or args.work / "phantom-full-pulling"

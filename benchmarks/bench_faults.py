@@ -8,7 +8,7 @@ moment in the two checkpoint intervals after training (re)started, and resumed w
 `surgsplat train --resume` after each kill. Per kill: the wall seconds of training since the last
 complete checkpoint (what the kill lost), the iterations past it that the log had reached, and
 whether the checkpoint loaded. At the end the run is resumed to completion and its log must hold
-strictly increasing iterations. Results go to benchmarks/results/bench_faults-<cpu>.json.
+strictly increasing iterations. Results go to benchmarks/results/bench_faults-<cpu>-<best ISA>.json.
 """
 
 from __future__ import annotations
@@ -114,7 +114,7 @@ def main() -> None:
               "lost_iterations_logged_max": max(t["lost_iterations_logged"] for t in trials),
               "checkpoints_damaged": 0, "final_resume_ok": resumed_ok,
               "final_log_strictly_increasing": resumed_ok, "rows": trials}
-    out = args.out or results_path("bench_faults", info["cpu"])
+    out = args.out or results_path("bench_faults", info)
     out.write_text(json.dumps(report, indent=1) + "\n")
     print(f"{len(trials)} kills, checkpoint every {args.checkpoint_seconds:g} s: work lost median "
           f"{report['lost_wall_s_median']:.1f} s, max {report['lost_wall_s_max']:.1f} s; "

@@ -143,7 +143,7 @@ def main() -> None:
               "targets": {"peak_rss_mb": 4096, "steps_ratio": 0.9}}
     print(json.dumps(report, indent=2))
     if args.json:
-        out = results_path("bench_long_clip", info["cpu"])
+        out = results_path("bench_long_clip", info)
         out.write_text(json.dumps(report, indent=2) + "\n")
         print(f"results: {out}")
 

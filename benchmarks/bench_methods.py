@@ -6,8 +6,9 @@ peak RSS are each run's own).
                                        [--cases NAME ...]
 
 A suite lists its cases, the metrics it reports and its baseline case; every ratio is against
-that baseline in the same run. Results go to benchmarks/results/bench_methods_<suite>-<cpu>.json
-and become the README region `bench_methods_<suite>` (benchmarks/readme_tables.py).
+that baseline in the same run. Results go to
+benchmarks/results/bench_methods_<suite>-<cpu>-<best ISA>.json and become the README region
+`bench_methods_<suite>` (benchmarks/readme_tables.py).
 
 Suite `endogsg` (issue 13): deform3dgs, endogaussian and endoplanar beside endogsg and its
 ablations of Endo-GSG Table 4 (without the depth loss, without projection and orientation,
@@ -253,7 +254,7 @@ def main() -> None:
     parser.add_argument("--cases", nargs="+", default=None,
                         help="run only these cases of the suite (default: all)")
     parser.add_argument("--out", type=Path, default=None, help="result file (default "
-                        "benchmarks/results/bench_methods_<suite>-<cpu>.json)")
+                        "benchmarks/results/bench_methods_<suite>-<cpu>-<best ISA>.json)")
     parser.add_argument("--collect", type=Path, default=None, metavar="LOG",
                         help="run nothing: write the report from the rows an interrupted "
                              "`--json` run printed to LOG (its cases that finished)")
@@ -287,7 +288,7 @@ def main() -> None:
         report["note"] = ("collected from the rows printed by an interrupted run; cases not "
                           "finished: " + (", ".join(case.name for case in suite.cases
                                                     if case.name not in done) or "none"))
-    out = args.out or results_path(f"bench_methods_{args.suite}", info["cpu"])
+    out = args.out or results_path(f"bench_methods_{args.suite}", info)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2) + "\n")
     if not args.json:

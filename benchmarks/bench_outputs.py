@@ -6,7 +6,7 @@
 RUN is a trained run, e.g. the full-phantom deform3dgs run of bench_methods.py
 (/tmp/surgsplat-bench-methods/run-deform3dgs). Targets (issue 12): PLY of 100k Gaussians <= 2 s;
 viewer >= 10 frames per second at 640x512 with ~50k Gaussians; report of a run <= 20 s. Results
-go to benchmarks/results/bench_outputs-<cpu>.json.
+go to benchmarks/results/bench_outputs-<cpu>-<best ISA>.json.
 """
 
 from __future__ import annotations
@@ -95,7 +95,7 @@ def main() -> None:
     report = {"benchmark": "bench_outputs", "cpu": info["cpu"], "system": info,
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "run": str(args.run), "rows": [row]}
-    out = args.out or results_path("bench_outputs", info["cpu"])
+    out = args.out or results_path("bench_outputs", info)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=2) + "\n")
     print(json.dumps(report, indent=2) if args.json else

@@ -11,8 +11,9 @@ this machine now) with the measured call; medians are reported. Since shared mac
 same command at different speeds from hour to hour, the figure that holds across runs and
 machines is the efficiency: evals_per_s / probe_evals_per_s, where evals_per_s counts the
 (Gaussian, pixel) pairs of the 16x16 tiles each Gaussian is binned to, per second (for fwd+bwd,
-per second of forward plus backward). Results go to benchmarks/results/bench_render-<cpu>.json,
-which benchmarks/readme_tables.py turns into the README's table.
+per second of forward plus backward). Results go to
+benchmarks/results/bench_render-<cpu>-<best ISA>.json, which benchmarks/readme_tables.py turns
+into the README's table.
 """
 
 from __future__ import annotations
@@ -158,9 +159,12 @@ def case_in_subprocess(case: str, isa: str, repeats: int) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def results_path(benchmark: str, cpu: str) -> Path:
-    """benchmarks/results/<benchmark>-<cpu model, lower case, dashes>.json"""
-    slug = re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-")
+def results_path(benchmark: str, info: dict) -> Path:
+    """benchmarks/results/<benchmark>-<cpu model>-<best ISA>.json, lower case with dashes, from
+    native.system_info(): the best ISA tells apart machines that share a model name (an "AMD
+    EPYC" may be a Zen 3 with AVX2 or a Zen 5 with AVX-512)."""
+    machine = f"{info['cpu']} {info['available_isas'][0]}"
+    slug = re.sub(r"[^a-z0-9]+", "-", machine.lower()).strip("-")
     return RESULTS / f"{benchmark}-{slug}.json"
 
 
@@ -172,7 +176,7 @@ def write_report(benchmark: str, result: dict, out: Path | None) -> Path:
               "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
               "command": " ".join(["python", f"benchmarks/{benchmark}.py", *sys.argv[1:]]),
               **result}
-    out = out or results_path(benchmark, info["cpu"])
+    out = out or results_path(benchmark, info)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out, json.dumps(report, indent=2) + "\n")
     return out
@@ -184,7 +188,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="measured rounds per case (>= 5 "
                         "for results to keep)")
     parser.add_argument("--out", type=Path, help="JSON file (default: "
-                        "benchmarks/results/bench_render-<cpu>.json)")
+                        "benchmarks/results/bench_render-<cpu>-<best ISA>.json)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--case", help=argparse.SUPPRESS)  # one case, in a child process
     args = parser.parse_args()
@@ -200,13 +204,9 @@ def main() -> None:
         for case in cases:
             rows.append(case_in_subprocess(case, isa, args.repeats))
             print(json.dumps(rows[-1]), file=sys.stderr)
-    info = native.system_info()
-    report = {"benchmark": "bench_render", "cpu": info["cpu"], "system": info,
-              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-              "width": WIDTH, "height": HEIGHT, "repeats": args.repeats, "rows": rows}
-    out = args.out or results_path("bench_render", info["cpu"])
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=1) + "\n")
+    out = write_report("bench_render", {"width": WIDTH, "height": HEIGHT,
+                                        "repeats": args.repeats, "rows": rows}, args.out)
+    report = json.loads(out.read_text())
     if args.json:
         print(json.dumps(report, indent=1))
     else:

@@ -206,7 +206,7 @@ def main() -> None:
     parser.add_argument("--pictures", type=Path, default=None,
                         help="write frames next to their aligned shading depth and true depth")
     parser.add_argument("--out", type=Path, default=None, help="result file (default "
-                        "benchmarks/results/bench_shading_depth-<cpu>.json)")
+                        "benchmarks/results/bench_shading_depth-<cpu>-<best ISA>.json)")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     phantom = args.phantom

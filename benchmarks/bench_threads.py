@@ -10,7 +10,7 @@ keeps one core busy:
 
 Runs alternate between the policies, each training in its own process; medians are reported,
 and the ratio of each to the `surgsplat` default of the same competition setting. Results go to
-benchmarks/results/bench_threads-<cpu>.json.
+benchmarks/results/bench_threads-<cpu>-<best ISA>.json.
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def main() -> None:
               "iters": args.iters, "repeats": args.repeats,
               "load_average_1min": {"start": load_at_start, "end": os.getloadavg()[0]},
               "rows": rows}
-    out = args.out or results_path("bench_threads", info["cpu"])
+    out = args.out or results_path("bench_threads", info)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=1) + "\n")
     print(f"{'policy':>10} {'competing':>9} {'train s':>8} {'ratio':>6}")

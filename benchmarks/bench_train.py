@@ -14,8 +14,9 @@ iteration (the mean over the run, the median step, and the mean over the last 10
 iterations, where the Gaussians are most numerous), rendering FPS of the trained model (median
 over the test frames of the full render: deformation, projection, rasterisation), and the
 in-process limit probe (bench_render's composite_probe) before and after training, so that times
-compare across machines and hours. Results go to benchmarks/results/bench_train-<cpu>.json;
-benchmarks/readme_tables.py turns them into the README's table.
+compare across machines and hours. Results go to
+benchmarks/results/bench_train-<cpu>-<best ISA>.json; benchmarks/readme_tables.py turns them into
+the README's table.
 
 Targets (issue 10): deform3dgs on the phantom >= 35 dB within 60 s and >= 39 dB within 240 s of
 training; the CholecSeg8k clip <= 0.15 s per iteration at default settings; rendering the
@@ -197,7 +198,7 @@ def main() -> None:
                         default=Path(tempfile.gettempdir()) / "surgsplat-bench-train")
     parser.add_argument("--skip-real", action="store_true", help="skip the CholecSeg8k clip")
     parser.add_argument("--out", type=Path, help="JSON file (default: "
-                        "benchmarks/results/bench_train-<cpu>.json)")
+                        "benchmarks/results/bench_train-<cpu>-<best ISA>.json)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--case", help=argparse.SUPPRESS)  # SCENE:PRESET:DIR, in a child process
     args = parser.parse_args()

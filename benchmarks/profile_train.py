@@ -9,7 +9,7 @@ Only the main thread's samples count (OpenMP workers and other threads only wait
 for it). A sample counts for the first category (in the order of CATEGORIES) one of whose
 markers is in its stack, the rest is `other`; shares are given for the whole run and for the
 samples inside a training step (stacks through --step-marker). Results go to
-benchmarks/results/profile_train-<scene folder>-<method>-<cpu>.json.
+benchmarks/results/profile_train-<scene folder>-<method>-<cpu>-<best ISA>.json.
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ def main() -> None:
               "data": args.data.name, "samples": sum(stacks.values()),
               "step_samples": sum(in_steps.values()),
               "shares_whole_run": categorise(stacks), "shares_in_steps": categorise(in_steps)}
-    out = args.out or results_path(f"profile_train-{args.data.name}-{args.method}", info["cpu"])
+    out = args.out or results_path(f"profile_train-{args.data.name}-{args.method}", info)
     out.write_text(json.dumps(report, indent=1) + "\n")
     for scope in ("shares_whole_run", "shares_in_steps"):
         print(scope.replace("_", " ") + ":")
