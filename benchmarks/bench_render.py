@@ -10,8 +10,8 @@ next) and alternates, `repeats` times, a call of the native module's composite_p
 this machine now) with the measured call; medians are reported. Since shared machines run the
 same command at different speeds from hour to hour, the figure that holds across runs and
 machines is the efficiency: evals_per_s / probe_evals_per_s, where evals_per_s counts the
-(Gaussian, pixel) pairs of the 16x16 tiles each Gaussian is binned to, per second (for fwd+bwd,
-per second of forward plus backward). Results go to
+(Gaussian, pixel) pairs of the 16x16 tiles each Gaussian's alpha box touches, per second (for
+fwd+bwd, per second of forward plus backward). Results go to
 benchmarks/results/bench_render-<cpu>-<best ISA>.json, which benchmarks/readme_tables.py turns
 into the README's table.
 """
@@ -87,14 +87,16 @@ def screen_inputs(num: int, channels: int):
 
 
 def tile_pairs(leaves, depths, radii) -> int:
-    """(Gaussian, pixel) pairs of the tiles the Gaussians are binned to."""
+    """(Gaussian, pixel) pairs of the tiles the Gaussians' alpha >= 1/255 boxes touch: a
+    measure of the scene's work that does not change with the binning (which leaves out the
+    tiles a box touches but its ellipse misses)."""
     channels = leaves[3].shape[1]
     bins = native.native_module().rasterize_forward(
         *(t.detach().contiguous().numpy() for t in leaves), depths.contiguous().numpy(),
         radii.numpy(), torch.zeros(channels).numpy(), WIDTH, HEIGHT,
         torch.empty(HEIGHT, WIDTH, channels).numpy(),
         torch.empty(HEIGHT, WIDTH).numpy(), torch.empty(HEIGHT, WIDTH, dtype=torch.int32).numpy())
-    return bins.num_overlaps * 256
+    return bins.box_overlaps * 256
 
 
 def raster_case(num: int, channels: int, repeats: int) -> dict:

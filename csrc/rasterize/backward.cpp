@@ -102,7 +102,7 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                     prefetch(mine + ahead * stride);  // both lines a slot may span
                     prefetch(mine + (ahead + 1) * stride - 1);
                 }
-                const SplatInTile s(bins.splats[rank], px0, py0, lanes);
+                const SplatInTile s(bins.splats[rank], bins.spans[k], px0, lanes);
                 const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;
                 const float* feature = bins.features.data() + rank * channels;
                 s.with_reached_registers([&](auto first_register, auto registers) {

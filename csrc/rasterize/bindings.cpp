@@ -77,7 +77,10 @@ void backward(const TileBins& bins, In<float> means2d, In<float> conics, In<floa
 void bind_rasterize(nb::module_& m) {
     nb::class_<TileBins>(m, "TileBins", "Depth-sorted Gaussian lists of the 16x16 tiles.")
         .def_prop_ro("num_overlaps", [](const TileBins& b) { return b.ranks.size(); },
-                     "Total (tile, Gaussian) pairs.")
+                     "Total (tile, Gaussian) pairs: the tiles each Gaussian's alpha >= 1/255 "
+                     "ellipse reaches.")
+        .def_prop_ro("box_overlaps", [](const TileBins& b) { return b.box_overlaps; },
+                     "(tile, Gaussian) pairs of the Gaussians' alpha >= 1/255 boxes, a superset.")
         .def_prop_ro("tiles", [](const TileBins& b) { return b.tiles_x * b.tiles_y; });
     m.def("rasterize_forward", &forward, "Bin, sort and composite; returns the tile bins.");
     m.def("rasterize_backward", &backward, "Gradients of the compositing, given its tile bins.");

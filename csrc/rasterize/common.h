@@ -121,17 +121,46 @@ struct alignas(64) SplatRecord {
 };
 static_assert(sizeof(SplatRecord) == 64, "a splat record fills one cache line");
 
+// The part of one tile a Gaussian reaches: tile rows row0 .. row1 and columns (lanes) lane0 ..
+// lane1. Binning computes it once per (Gaussian, tile) and keeps it beside the tile lists: in the
+// compositing passes its square roots and branches sat at the head of every (Gaussian, tile)
+// step, and the row loop's bounds waited for them.
+struct TileSpan {
+    uint8_t row0, row1, lane0, lane1;
+};
+
+// The span of the tile whose top left pixel is (px0, py0) where `splat` can reach alpha >=
+// kAlphaMin; false when it reaches no pixel centre of the tile (a tile its box touches beside
+// a tilted ellipse).
+inline bool span_in_tile(const SplatRecord& splat, int px0, int py0, TileSpan& span) {
+    const PixelBox& box = splat.box;
+    int row0 = std::max(box.y0 - py0, 0), row1 = std::min(box.y1 - py0, kTile - 1);
+    const int lane0 = std::max(box.x0 - px0, 0), lane1 = std::min(box.x1 - px0, kTile - 1);
+    // a box spilling over the tile's sides may miss the tile in some of its rows
+    const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
+    if (spills && !narrow_to_tile_rows(splat.mx, splat.my, splat.a, splat.b, splat.c,
+                                       splat.q_max, splat.reach, px0, py0, row0, row1))
+        return false;
+    span = TileSpan{static_cast<uint8_t>(row0), static_cast<uint8_t>(row1),
+                    static_cast<uint8_t>(lane0), static_cast<uint8_t>(lane1)};
+    return true;
+}
+
 // Tile lists: tile t composites the drawn Gaussians of ranks[offsets[t] .. offsets[t+1]),
-// nearest first. A rank is a position in the depth order, and indexes copies of the drawn
-// Gaussians' data made in that order (splats, features): every tile list is increasing in rank,
-// so the passes read their Gaussians' data in memory order instead of gathering it from the
-// inputs' arbitrary order (measured: 8-15% of the forward and backward time).
+// nearest first, each over its spans[] entry (the tiles a Gaussian's box touches but its alpha
+// >= kAlphaMin ellipse misses are left out). A rank is a position in the depth order, and
+// indexes copies of the drawn Gaussians' data made in that order (splats, features): every tile
+// list is increasing in rank, so the passes read their Gaussians' data in memory order instead
+// of gathering it from the inputs' arbitrary order (measured: 8-15% of the forward and backward
+// time).
 struct TileBins {
     int tiles_x = 0, tiles_y = 0;
     int64_t num_gaussians = 0;          // N, Gaussians in the inputs
     int64_t channels = 0;               // C, feature channels
     std::vector<int32_t> offsets;       // [tiles + 1]
     std::vector<int32_t> ranks;         // [total overlaps]
+    std::vector<TileSpan> spans;        // [total overlaps], the part of the tile each reaches
+    int64_t box_overlaps = 0;           // (tile, Gaussian) pairs of the alpha boxes, >= overlaps
     std::vector<SplatRecord> splats;    // [drawn], nearest first
     std::vector<float> features;        // [drawn, C], nearest first
     std::vector<float> background;      // [C], seen through the remaining transmittance
@@ -144,25 +173,16 @@ struct TileBins {
 struct SplatInTile {
     float mx, my, a, b, c, opacity, yc;
     RowF dx, ya, yb;   // per lane: dx, log2(o) - log2(e) a dx^2 / 2 and -log2(e) b dx
-    int row0, row1;    // the tile rows it reaches (empty when row1 < row0)
+    int row0, row1;    // the tile rows it reaches
     int lane0, lane1;  // the tile columns (lanes) its alpha box covers
 
-    SplatInTile(const SplatRecord& splat, int px0, int py0, RowF lanes)
+    SplatInTile(const SplatRecord& splat, TileSpan span, int px0, RowF lanes)
         : mx(splat.mx), my(splat.my), a(splat.a), b(splat.b), c(splat.c),
-          opacity(splat.opacity), yc(-0.5f * kLog2e * splat.c) {
-        const PixelBox& box = splat.box;
+          opacity(splat.opacity), yc(-0.5f * kLog2e * splat.c), row0(span.row0),
+          row1(span.row1), lane0(span.lane0), lane1(span.lane1) {
         dx = lanes + (px0 + 0.5f - mx);
         ya = (-0.5f * kLog2e * a) * dx * dx + splat.log2_opacity;
         yb = (-kLog2e * b) * dx;
-        row0 = box.y0 - py0 > 0 ? box.y0 - py0 : 0;
-        row1 = box.y1 - py0 < kTile - 1 ? box.y1 - py0 : kTile - 1;
-        lane0 = box.x0 - px0 > 0 ? box.x0 - px0 : 0;
-        lane1 = box.x1 - px0 < kTile - 1 ? box.x1 - px0 : kTile - 1;
-        // a box spilling over the tile's sides may miss the tile in some of its rows
-        const bool spills = box.x0 < px0 || box.x1 >= px0 + kTile;
-        if (spills && !narrow_to_tile_rows(mx, my, a, b, c, splat.q_max, splat.reach, px0,
-                                              py0, row0, row1))
-            row1 = row0 - 1;
     }
     // alpha in the registers R0 .. R0 + N - 1 of tile row offset dy.
     template <int R0, int N>

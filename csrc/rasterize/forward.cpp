@@ -39,7 +39,7 @@ void rasterize_forward(const TileBins& bins, int width, int height, float* image
             for (int32_t k = start; k < end; ++k) {
                 const int32_t rank = bins.ranks[k];
                 if (k + kPrefetchAhead < end) prefetch_splat(bins, bins.ranks[k + kPrefetchAhead]);
-                const SplatInTile s(bins.splats[rank], px0, py0, lanes);
+                const SplatInTile s(bins.splats[rank], bins.spans[k], px0, lanes);
                 const float* feature = bins.features.data() + rank * channels;
                 bool any_live = false;
                 s.with_reached_registers([&](auto first_register, auto registers) {

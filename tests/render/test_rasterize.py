@@ -70,6 +70,42 @@ def test_opaque_layers_stop_early_in_both(native_isa, scene_factory):
         assert relative_error(native[2][name], reference[2][name]) < 1e-4, name
 
 
+def diagonal_needles(num: int, width: int, height: int, seed: int = 0) -> dict:
+    """Long thin Gaussians along the image diagonals, centred near tile corners: their alpha
+    boxes touch tiles (the off-diagonal corners of the boxes) that their ellipses miss."""
+    generator = torch.Generator().manual_seed(seed)
+    corners = torch.tensor([[16.0 * (1 + i % 3), 16.0 * (1 + i // 3 % 2)] for i in range(num)])
+    means2d = corners + torch.rand(num, 2, generator=generator) * 2.0 - 1.0
+    angles = torch.where(torch.arange(num) % 2 == 0, 0.785, -0.785)
+    axis = torch.stack([angles.cos(), angles.sin()], -1)  # [N, 2]
+    normal = torch.stack([-axis[:, 1], axis[:, 0]], -1)
+    # conic = R diag(1 / 9^2, 1 / 0.7^2) R^T: 9 px along the axis, 0.7 px across
+    conic = (axis[:, :, None] * axis[:, None, :] / 81.0
+             + normal[:, :, None] * normal[:, None, :] / 0.49)
+    return {"means2d": means2d, "conics": torch.stack([conic[:, 0, 0], conic[:, 0, 1],
+                                                       conic[:, 1, 1]], -1),
+            "opacities": torch.rand(num, generator=generator) * 0.5 + 0.45,
+            "features": torch.rand(num, 3, generator=generator),
+            "depths": torch.rand(num, generator=generator) + 1.0,
+            "radii": torch.full((num,), 30, dtype=torch.int32), "width": width, "height": height}
+
+
+def test_tiles_an_ellipse_misses_are_not_binned_and_change_nothing(native_isa):
+    scene = diagonal_needles(12, 64, 48)
+    module = native_loader.native_module()
+    bins = module.rasterize_forward(
+        *(scene[k].contiguous().numpy() for k in (*DIFFERENTIABLE, "depths", "radii")),
+        torch.zeros(3).numpy(), 64, 48, torch.empty(48, 64, 3).numpy(),
+        torch.empty(48, 64).numpy(), torch.empty(48, 64, dtype=torch.int32).numpy())
+    assert bins.num_overlaps < bins.box_overlaps
+    native, reference = run(scene, "native"), run(scene, "reference")
+    assert (native[0] - reference[0]).abs().max() < 1e-5
+    assert (native[1] - reference[1]).abs().max() < 1e-5
+    for name in DIFFERENTIABLE:
+        assert relative_error(native[2][name], reference[2][name]) < 1e-4, name
+    assert relative_error(native[3], reference[3]) < 1e-4
+
+
 @pytest.mark.parametrize("num,opacity,seed", [(300, None, 11), (500, 0.98, 12), (40, None, 13)])
 def test_background_matches_reference(native_isa, scene_factory, num, opacity, seed):
     """A background [C] seen through the remaining transmittance: native == reference in the
