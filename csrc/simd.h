@@ -137,31 +137,32 @@ struct Pack {
 typedef Pack<float> Vec16;
 typedef Pack<int32_t> Vec16i;
 
-// Registers R0 .. R0 + N - 1 of a 16-lane vector, and writing them back.
-template <int R0, int N, class T>
-SURGSPLAT_INLINE Pack<T, N> part(const Pack<T>& x) {
-    static_assert(R0 >= 0 && N >= 1 && R0 + N <= kRegs, "registers out of range");
+// Registers R0 .. R0 + N - 1 of a vector of M registers, and writing them back.
+template <int R0, int N, class T, int M>
+SURGSPLAT_INLINE Pack<T, N> part(const Pack<T, M>& x) {
+    static_assert(R0 >= 0 && N >= 1 && R0 + N <= M, "registers out of range");
     Pack<T, N> out;
     for (int i = 0; i < N; ++i) out.r[i] = x.r[R0 + i];
     return out;
 }
-template <int R0, int N, class T>
-SURGSPLAT_INLINE void set_part(Pack<T>& x, const Pack<T, N>& value) {
+template <int R0, int N, class T, int M>
+SURGSPLAT_INLINE void set_part(Pack<T, M>& x, const Pack<T, N>& value) {
+    static_assert(R0 >= 0 && N >= 1 && R0 + N <= M, "registers out of range");
     for (int i = 0; i < N; ++i) x.r[R0 + i] = value.r[i];
 }
 
 // f(std::integral_constant<int, R0>, std::integral_constant<int, N>) for the registers R0 ..
-// R0 + N - 1 that hold lanes first .. last (0 <= first <= last < kVecLanes): a run-time lane
-// range to a compile-time register range.
-template <int R0 = 0, int N = 1, class F>
+// R0 + N - 1 = first .. last (0 <= first <= last < M) of a vector of M registers: a run-time
+// register range to a compile-time one.
+template <int M, int R0 = 0, int N = 1, class F>
 SURGSPLAT_INLINE void with_registers(int first, int last, F&& f) {
-    if constexpr (R0 + N <= kRegs) {
-        if (first / kRegLanes == R0 && last / kRegLanes == R0 + N - 1)
+    if constexpr (R0 + N <= M) {
+        if (first == R0 && last == R0 + N - 1)
             f(std::integral_constant<int, R0>{}, std::integral_constant<int, N>{});
-        else if constexpr (R0 + N < kRegs)
-            with_registers<R0, N + 1>(first, last, f);
+        else if constexpr (R0 + N < M)
+            with_registers<M, R0, N + 1>(first, last, f);
         else
-            with_registers<R0 + 1, 1>(first, last, f);
+            with_registers<M, R0 + 1, 1>(first, last, f);
     }
 }
 

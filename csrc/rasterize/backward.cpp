@@ -41,7 +41,7 @@ void rasterize_backward(const TileBins& bins, int width, int height,
     const int64_t drawn = static_cast<int64_t>(bins.splats.size());
     const int64_t stride = kFeatures + channels;
     const int threads = omp_get_max_threads();
-    const RowF lanes = lane_offsets();
+    const BandF columns = band_lanes(true), rows = band_lanes(false);
     // per thread, one gradient slot per drawn Gaussian, in depth order (by rank); each thread
     // zeroes its own slots (in parallel, and on the thread's side of the memory)
     const size_t slots = static_cast<size_t>(drawn) * stride;
@@ -50,11 +50,11 @@ void rasterize_backward(const TileBins& bins, int width, int height,
     {
         float* mine = partial.get() + static_cast<size_t>(omp_get_thread_num()) * slots;
         std::fill(mine, mine + slots, 0.0f);
-        std::vector<RowF> grad_in(channels * kTile);  // [channel][row]
-        std::vector<RowF> grad_f(channels);
-        RowF trans[kTile], behind[kTile], grad_a[kTile];
-        RowI last[kTile];
-        int32_t row_last[kTile];  // per row, the largest last entry: later Gaussians skip it
+        std::vector<BandF> grad_in(channels * kBands);  // [channel][band]
+        std::vector<BandF> grad_f(channels);
+        BandF trans[kBands], behind[kBands], grad_a[kBands];
+        BandI last[kBands];
+        int32_t band_last[kBands];  // per band, the largest last entry: later Gaussians skip it
         // interleaved static schedule: the same tiles go to the same thread on every call, so the
         // per-thread sums, and the gradients, are reproducible
 #pragma omp for schedule(static, 1)
@@ -70,30 +70,30 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                 prefetch_tile_pixels(grad_image, channels, width, height, next_x, next_y);
             }
             // the tile's pixels; those outside the image composite nothing and get no gradient
-            const int columns = std::min(kTile, width - px0);
-            for (int row = 0; row < kTile; ++row) {
-                trans[row] = row_of(1.0f);
-                last[row] = row_of(start);
-                grad_a[row] = behind[row] = row_of(0.0f);
-                for (int64_t ch = 0; ch < channels; ++ch) grad_in[ch * kTile + row] = row_of(0.0f);
-                if (py0 + row < height) {
-                    const int64_t pixel0 = static_cast<int64_t>(py0 + row) * width + px0;
-                    trans[row] = load_tile_row(transmittance + pixel0, columns, 1.0f);
-                    last[row] = load_tile_row(last_entry + pixel0, columns, start);
-                    grad_a[row] = load_tile_row(grad_alpha + pixel0, columns, 0.0f);
-                    const float* grad_pixels = grad_image + pixel0 * channels;
-                    for (int col = 0; col < columns; ++col)
-                        for (int64_t ch = 0; ch < channels; ++ch)
-                            grad_in[ch * kTile + row][col] = grad_pixels[col * channels + ch];
-                    for (int64_t ch = 0; ch < channels; ++ch)
-                        behind[row] += bins.background[ch] * grad_in[ch * kTile + row];
+            const int in_columns = std::min(kTile, width - px0);
+            for (int band = 0; band < kBands; ++band) {
+                const int y0 = py0 + band * kBandRows;
+                const int in_rows = std::max(0, std::min(kBandRows, height - y0));
+                trans[band] = load_band(transmittance, width, px0, y0, in_columns, in_rows, 1.0f);
+                last[band] = load_band(last_entry, width, px0, y0, in_columns, in_rows, start);
+                grad_a[band] = load_band(grad_alpha, width, px0, y0, in_columns, in_rows, 0.0f);
+                behind[band] = BandF::all(0.0f);
+                for (int64_t ch = 0; ch < channels; ++ch) {
+                    BandF& grad = grad_in[ch * kBands + band];
+                    grad = BandF::all(0.0f);
+                    for (int i = 0; i < kBandLanes; ++i)
+                        if (band_column(i) < in_columns && band_row(i) < in_rows)
+                            grad[i] = grad_image[((static_cast<int64_t>(y0) + band_row(i)) * width +
+                                                  px0 + band_column(i)) * channels + ch];
+                    behind[band] += bins.background[ch] * grad;
                 }
-                row_last[row] = start;
-                for (int col = 0; col < kTile; ++col) row_last[row] = std::max(row_last[row], last[row][col]);
+                band_last[band] = start;
+                for (int i = 0; i < kBandLanes; ++i)
+                    band_last[band] = std::max(band_last[band], last[band][i]);
             }
             // Gaussians behind every pixel's last contributor (where compositing stopped) have
             // no gradient: the walk back to front starts at the tile's last contributor.
-            const int32_t tile_last = *std::max_element(row_last, row_last + kTile);
+            const int32_t tile_last = *std::max_element(band_last, band_last + kBands);
             for (int32_t k = tile_last - 1; k >= start; --k) {
                 const int32_t rank = bins.ranks[k];
                 if (k - kPrefetchAhead >= start) {
@@ -102,7 +102,7 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                     prefetch(mine + ahead * stride);  // both lines a slot may span
                     prefetch(mine + (ahead + 1) * stride - 1);
                 }
-                const SplatInTile s(bins.splats[rank], bins.spans[k], px0, lanes);
+                const SplatInTile s(bins.splats[rank], bins.spans[k], px0, py0, columns, rows);
                 const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;
                 const float* feature = bins.features.data() + rank * channels;
                 s.with_reached_registers([&](auto first_register, auto registers) {
@@ -110,38 +110,38 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                     constexpr int N = decltype(registers)::value;
                     const RowPart<N> dx = part<R0, N>(s.dx);
                     const RowPart<N> a_dx = a * dx, b_dx = b * dx;
-                    // Per lane (pixel column) sums over the rows of ad = alpha dL/dalpha where
-                    // alpha is free, of ad dy and of ad dy^2: with dL/dq = -ad / 2 and
-                    // q = a dx^2 + 2 b dx dy + c dy^2 (dx constant in a lane, dy in a row), they
-                    // give the mean, conic and opacity gradients after the rows (below), three
-                    // accumulations per row instead of a dozen operations.
+                    // Per lane sums over the bands of ad = alpha dL/dalpha where alpha is free, of
+                    // ad dy and of ad dy^2: with dL/dq = -ad / 2 and q = a dx^2 + 2 b dx dy +
+                    // c dy^2 (dx constant in a lane, which keeps its column in every band), they
+                    // give the mean, conic and opacity gradients after the bands (below), three
+                    // accumulations per band instead of a dozen operations.
                     RowPart<N> sum_ad{}, sum_ad_dy{}, sum_ad_dy2{}, abs_x{}, abs_y{};
-                    for (RowF& sum : grad_f) set_part<R0, N>(sum, RowPart<N>{});
+                    for (BandF& sum : grad_f) set_part<R0, N>(sum, RowPart<N>{});
                     bool touched = false;
-                    for (int row = s.row0; row <= s.row1; ++row) {
-                        if (k >= row_last[row]) continue;
-                        const float dy = py0 + row + 0.5f - s.my;
+                    for (int band = s.band0; band <= s.band1; ++band) {
+                        if (k >= band_last[band]) continue;
+                        const RowPart<N> dy = s.template dy<R0, N>(band);
                         touched = true;
                         const RowPart<N> raw = s.template alpha<R0, N>(dy);
-                        const RowPartI<N> in = (k < part<R0, N>(last[row])) & (raw >= kAlphaMin);
+                        const RowPartI<N> in = (k < part<R0, N>(last[band])) & (raw >= kAlphaMin);
                         const RowPart<N> alpha = select(in, raw, RowPart<N>{});
                         // lanes without this Gaussian keep their transmittance exactly
-                        const RowPart<N> t_after = part<R0, N>(trans[row]);
+                        const RowPart<N> t_after = part<R0, N>(trans[band]);
                         const RowPart<N> t_before =
                             select(in, t_after * reciprocal(1.0f - alpha), t_after);
                         const RowPart<N> weight = alpha * t_before;
                         // first = f . dL/dC + dL/dA: this Gaussian's own term of dL/dalpha
-                        RowPart<N> first = part<R0, N>(grad_a[row]);
+                        RowPart<N> first = part<R0, N>(grad_a[band]);
                         for (int64_t ch = 0; ch < channels; ++ch) {
-                            const RowPart<N> grad = part<R0, N>(grad_in[ch * kTile + row]);
+                            const RowPart<N> grad = part<R0, N>(grad_in[ch * kBands + band]);
                             set_part<R0, N>(grad_f[ch], part<R0, N>(grad_f[ch]) + weight * grad);
                             first += feature[ch] * grad;
                         }
-                        const RowPart<N> behind_dot = part<R0, N>(behind[row]);
+                        const RowPart<N> behind_dot = part<R0, N>(behind[band]);
                         const RowPart<N> difference = first - behind_dot;
                         const RowPart<N> d_alpha = t_before * difference;
-                        set_part<R0, N>(behind[row], behind_dot + alpha * difference);
-                        set_part<R0, N>(trans[row], t_before);
+                        set_part<R0, N>(behind[band], behind_dot + alpha * difference);
+                        set_part<R0, N>(trans[band], t_before);
                         // alpha = o G with G = exp(-q/2), unless clamped at kAlphaMax (then no
                         // gradient)
                         const RowPart<N> ad =

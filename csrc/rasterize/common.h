@@ -35,17 +35,7 @@ SURGSPLAT_INLINE RowF lane_offsets() {
     return lanes;
 }
 
-// The tile row of 16 pixels starting at `pixels` (one value each), of which only the first
-// `columns` are in the image; the others read `outside`.
-template <class T>
-SURGSPLAT_INLINE Pack<T> load_tile_row(const T* pixels, int columns, T outside) {
-    if (columns == kTile) return Pack<T>::load(pixels);
-    Pack<T> row = Pack<T>::all(outside);
-    for (int col = 0; col < columns; ++col) row[col] = pixels[col];
-    return row;
-}
-
-// A whole row (N = kRegs) or the registers of it that a Gaussian reaches (simd.h, part()).
+// A whole row or band (below), or the registers of it that a Gaussian reaches (simd.h, part()).
 template <int N>
 using RowPart = Pack<float, N>;
 template <int N>
@@ -54,6 +44,47 @@ using RowPartI = Pack<int32_t, N>;
 template <int N>
 SURGSPLAT_INLINE RowPart<N> row_min(RowPart<N> x, float bound) {
     return select(x > bound, RowPart<N>::all(bound), x);
+}
+
+// Tile bands: the compositing passes hold a tile as kBands bands of kBandRows pixel rows. A
+// band is kBandRegs registers; register j covers the columns j kBandCols .. (j + 1) kBandCols - 1
+// of the band's rows, lane l of it column l % kBandCols of those and row l / kBandCols of the
+// band. With 8 or 4 lanes (AVX2, SSE, NEON) a band is one tile row; with 16 (AVX-512) it is two
+// rows, and a register 8 columns x 2 rows. A Gaussian composites only the registers of its
+// columns (SplatInTile), so on AVX-512 one within 8 columns of a tile takes one register per
+// two rows instead of one per row (the surface scene of bench_render: 21 % fewer registers).
+constexpr int kBandCols = kRegLanes < 8 ? kRegLanes : 8;
+constexpr int kBandRows = kRegLanes / kBandCols;
+constexpr int kBandRegs = kTile / kBandCols;
+constexpr int kBands = kTile / kBandRows;
+constexpr int kBandLanes = kBandRegs * kRegLanes;  // pixels of a band
+typedef Pack<float, kBandRegs> BandF;
+typedef Pack<int32_t, kBandRegs> BandI;
+
+// The column in the tile and the row in the band of band lane i.
+constexpr int band_column(int i) { return i / kRegLanes * kBandCols + i % kBandCols; }
+constexpr int band_row(int i) { return i % kRegLanes / kBandCols; }
+
+// Per band lane, its column in the tile (columns) or its row in the band (rows).
+SURGSPLAT_INLINE BandF band_lanes(bool columns) {
+    BandF lanes;
+    for (int i = 0; i < kBandLanes; ++i)
+        lanes[i] = static_cast<float>(columns ? band_column(i) : band_row(i));
+    return lanes;
+}
+
+// The band of an [height, width] image (one value per pixel) whose first pixel is (px0, y0), of
+// which the first `columns` columns and `rows` rows are in the image; the others read `outside`.
+template <class T>
+SURGSPLAT_INLINE Pack<T, kBandRegs> load_band(const T* image, int width, int px0, int y0,
+                                              int columns, int rows, T outside) {
+    const T* first = image + static_cast<int64_t>(y0) * width + px0;
+    if (kBandRows == 1 && columns == kTile && rows == 1) return Pack<T, kBandRegs>::load(first);
+    Pack<T, kBandRegs> band = Pack<T, kBandRegs>::all(outside);
+    for (int i = 0; i < kBandLanes; ++i)
+        if (band_column(i) < columns && band_row(i) < rows)
+            band[i] = first[static_cast<int64_t>(band_row(i)) * width + band_column(i)];
+    return band;
 }
 
 // Inclusive pixel box outside which a Gaussian's alpha is below kAlphaMin.
@@ -166,37 +197,47 @@ struct TileBins {
     std::vector<float> background;      // [C], seen through the remaining transmittance
 };
 
-// One Gaussian as seen from one tile: what both compositing passes evaluate row by row.
+// One Gaussian as seen from one tile: what both compositing passes evaluate band by band.
 // alpha = min(kAlphaMax, o exp(-q / 2)) is computed as 2^y with y = log2(o) - q log2(e) / 2,
 // the opacity and the scale folded into per-lane terms: y = ya + dy (yb + yc dy). Binning draws
 // only positive definite conics, so q >= 0 (up to rounding) without a test.
 struct SplatInTile {
     float mx, my, a, b, c, opacity, yc;
-    RowF dx, ya, yb;   // per lane: dx, log2(o) - log2(e) a dx^2 / 2 and -log2(e) b dx
-    int row0, row1;    // the tile rows it reaches
-    int lane0, lane1;  // the tile columns (lanes) its alpha box covers
+    // per band lane: dx, log2(o) - log2(e) a dx^2 / 2, -log2(e) b dx, and dy in band 0
+    BandF dx, ya, yb, dy0;
+    int band0, band1;  // the bands holding the tile rows it reaches
+    int reg0, reg1;    // the band registers holding the tile columns its alpha box covers
 
-    SplatInTile(const SplatRecord& splat, TileSpan span, int px0, RowF lanes)
+    // columns and rows: band_lanes(true) and band_lanes(false)
+    SplatInTile(const SplatRecord& splat, TileSpan span, int px0, int py0, const BandF& columns,
+                const BandF& rows)
         : mx(splat.mx), my(splat.my), a(splat.a), b(splat.b), c(splat.c),
-          opacity(splat.opacity), yc(-0.5f * kLog2e * splat.c), row0(span.row0),
-          row1(span.row1), lane0(span.lane0), lane1(span.lane1) {
-        dx = lanes + (px0 + 0.5f - mx);
+          opacity(splat.opacity), yc(-0.5f * kLog2e * splat.c), band0(span.row0 / kBandRows),
+          band1(span.row1 / kBandRows), reg0(span.lane0 / kBandCols),
+          reg1(span.lane1 / kBandCols) {
+        dx = columns + (px0 + 0.5f - mx);
+        dy0 = rows + (py0 + 0.5f - my);
         ya = (-0.5f * kLog2e * a) * dx * dx + splat.log2_opacity;
         yb = (-kLog2e * b) * dx;
     }
-    // alpha in the registers R0 .. R0 + N - 1 of tile row offset dy.
+    // dy in the registers R0 .. R0 + N - 1 of `band`.
     template <int R0, int N>
-    SURGSPLAT_INLINE RowPart<N> alpha(float dy) const {
+    SURGSPLAT_INLINE RowPart<N> dy(int band) const {
+        return part<R0, N>(dy0) + static_cast<float>(band * kBandRows);
+    }
+    // alpha in the registers R0 .. R0 + N - 1 of a band, at their dy.
+    template <int R0, int N>
+    SURGSPLAT_INLINE RowPart<N> alpha(const RowPart<N>& dy) const {
         const RowPart<N> y = part<R0, N>(ya) + dy * (part<R0, N>(yb) + yc * dy);
         return row_min(pow2(y), kAlphaMax);
     }
 
-    // f(R0, N) (std::integral_constant) for the registers holding lanes lane0 .. lane1: narrow
-    // Gaussians skip the registers of the row their box does not reach, where alpha is below
-    // kAlphaMin anyway (without AVX-512: half of a row's work for boxes within 8 columns).
+    // f(R0, N) (std::integral_constant) for the band registers holding lanes lane0 .. lane1:
+    // narrow Gaussians skip the registers their box does not reach, where alpha is below
+    // kAlphaMin anyway.
     template <class F>
     SURGSPLAT_INLINE void with_reached_registers(F&& f) const {
-        with_registers(lane0, lane1, f);
+        with_registers<kBandRegs>(reg0, reg1, f);
     }
 };
 

@@ -142,7 +142,8 @@ void check_reductions_and_register_ranges(std::mt19937& rng) {
     for (int first = 0; first < kVecLanes; ++first) {
         for (int last = first; last < kVecLanes; ++last) {
             int calls = 0;
-            with_registers(first, last, [&](auto first_register, auto registers) {
+            with_registers<kRegs>(first / kRegLanes, last / kRegLanes,
+                                  [&](auto first_register, auto registers) {
                 constexpr int R0 = decltype(first_register)::value;
                 constexpr int N = decltype(registers)::value;
                 ++calls;
