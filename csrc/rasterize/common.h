@@ -13,7 +13,6 @@
 namespace surgsplat {
 
 constexpr int kTile = 16;                    // tile edge in pixels
-constexpr int kTilePixels = kTile * kTile;   // pixels per tile
 constexpr float kAlphaMax = 0.99f;           // alpha = min(0.99, o * exp(-q / 2))
 constexpr float kAlphaMin = 1.0f / 255.0f;   // contributions below this are skipped
 constexpr float kTransmittanceMin = 1e-4f;   // compositing stops below this transmittance
