@@ -49,7 +49,8 @@ def run_mode(scene_dir: Path, mode: str, run_dir: Path, iterations: int,
     config.densify.split = mode
     densify = config.densify
     trainer = Trainer(config, load_scene(scene_dir), run_dir)
-    densifying = {k for k in range(densify.start_iter, min(iterations, densify.stop_iter) + 1)
+    first, last = densify.window(config.train.iterations)
+    densifying = {k for k in range(first, min(iterations, last) + 1)
                   if k % densify.every == 0}
     steps, curve = [], []
     while trainer.iteration < iterations:

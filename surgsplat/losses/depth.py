@@ -31,10 +31,13 @@ def _mean_over(errors: Tensor, valid: Tensor, weights: Tensor | None = None) -> 
 
 def depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,
              weights: Tensor | None = None) -> Tensor:
-    """Mean |pred - gt| (depth units) over masked pixels with gt > 0; `weights` [H, W] weight
-    each pixel's error (Endo-GSG Eq. 12)."""
+    """Mean |pred - gt| over masked pixels with gt > 0, divided by the median measured depth of
+    those pixels: unit-free (a relative depth error), so that one weight suits scenes in
+    millimetres or metres; `weights` [H, W] weight each pixel's error (Endo-GSG Eq. 12)."""
     valid = valid_depth_pixels(pred_depth, gt, mask)
-    return _mean_over((pred_depth - gt).abs(), valid, weights)
+    if not valid.any():
+        return (pred_depth * 0.0).sum()
+    return _mean_over((pred_depth - gt).abs(), valid, weights) / gt[valid].median()
 
 
 def inverse_depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor,

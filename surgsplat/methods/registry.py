@@ -28,6 +28,11 @@ from surgsplat.model.specular import SpecularConfig
 from surgsplat.model.tool_field import ToolFieldConfig
 
 
+DEPTH_WEIGHT = 4.5
+"""Weight of the baselines' depth L1, which is relative (divided by the median measured depth):
+the 0.05 per millimetre of Deform3DGS and EndoGaussian at the phantom's median depth of 90 mm."""
+
+
 @dataclass(frozen=True)
 class Preset:
     """A named method."""
@@ -41,7 +46,7 @@ def deform3dgs() -> MethodConfig:
         name="deform3dgs",
         components={"deformation": GaussianBasisConfig(), "exposure": ExposureConfig(),
                     "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
-        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05)},
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT)},
         init=InitConfig(fusion="mapf"))
 
 
@@ -50,7 +55,7 @@ def endogaussian() -> MethodConfig:
         name="endogaussian",
         components={"deformation": HexPlaneConfig(), "exposure": ExposureConfig(),
                     "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
-        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05),
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT),
                 "plane_tv": LossWeight(1e-4), "time_smoothness": LossWeight(1e-3)},
         init=InitConfig(fusion="mapf"))
 
@@ -62,7 +67,7 @@ def endoplanar() -> MethodConfig:
                     "planar": PlanarConfig(), "photometric": PhotometricConfig(),
                     "depth": DepthLossConfig(form="inverse_l1")},
         losses={"photometric": LossWeight(1.0), "depth": LossWeight(20.0),
-                "flatten": LossWeight(100.0), "normal": LossWeight(0.05, start_iter=500)},
+                "flatten": LossWeight(100.0), "normal": LossWeight(0.05, start=1 / 6)},
         gaussians=GaussianConfig(init_thickness=0.01),
         init=InitConfig(fusion="mogf"))
 
@@ -82,7 +87,7 @@ def endogsg() -> MethodConfig:
                     "sdf": SDFConfig(),
                     "photometric": PhotometricConfig(occlusion_gamma=ENDO_GSG_GAMMA),
                     "depth": DepthLossConfig(occlusion_gamma=ENDO_GSG_GAMMA)},
-        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.5),
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(10 * DEPTH_WEIGHT),
                 "eikonal": LossWeight(0.1), "projection": LossWeight(1.0),
                 "orientation": LossWeight(0.5), "sda": LossWeight(0.1),
                 "plane_tv": LossWeight(1e-4), "time_smoothness": LossWeight(1e-3)},
@@ -103,9 +108,9 @@ def drawer() -> MethodConfig:
     return method
 
 
-LUMISTATE_STAGE2_ITER = 1000
-"""Iteration at which LumiState's Stage 2 (Retinex and bright-channel losses) starts: a third of
-the default 3000, once geometry and reflectance have settled under the photometric loss."""
+LUMISTATE_STAGE2 = 1 / 3
+"""Fraction of the run after which LumiState's Stage 2 (Retinex and bright-channel losses)
+starts, once geometry and reflectance have settled under the photometric loss."""
 
 
 def lumistate() -> MethodConfig:
@@ -116,9 +121,9 @@ def lumistate() -> MethodConfig:
         name="lumistate",
         components={"deformation": GaussianBasisConfig(), "lumistate": LumiStateConfig(),
                     "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
-        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05),
-                "retinex": LossWeight(0.05, start_iter=LUMISTATE_STAGE2_ITER),
-                "bright_channel": LossWeight(0.25, start_iter=LUMISTATE_STAGE2_ITER)},
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT),
+                "retinex": LossWeight(0.05, start=LUMISTATE_STAGE2),
+                "bright_channel": LossWeight(0.25, start=LUMISTATE_STAGE2)},
         init=InitConfig(fusion="mapf"))
 
 
@@ -131,7 +136,7 @@ def physiosplat() -> MethodConfig:
                     "exposure": ExposureConfig(), "specular": SpecularConfig(),
                     "biomechanics": BiomechanicsConfig(), "photometric": PhotometricConfig(),
                     "depth": DepthLossConfig()},
-        losses={"photometric": LossWeight(1.0), "depth": LossWeight(0.05),
+        losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT),
                 "plane_tv": LossWeight(1e-4), "time_smoothness": LossWeight(1e-3),
                 "mask": LossWeight(0.1), "strain": LossWeight(1e-3),
                 "collision": LossWeight(1e-2), "volume": LossWeight(5e-4)},

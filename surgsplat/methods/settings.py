@@ -54,20 +54,26 @@ class LossWeight:
 
     weight: float = 1.0
     """Multiplier of the term (0 = the term is not computed)."""
-    start_iter: int = 0
-    """The term joins the objective from this iteration on."""
+    start: float = 0.0
+    """The term joins the objective once this fraction of the run (of train.iterations) has
+    passed, so that `--iters` moves it with the rest of the schedule; in [0, 1)."""
+
+    def start_iteration(self, iterations: int) -> int:
+        """First iteration (from 1) of a run of `iterations` steps at which the term is active."""
+        return max(round(self.start * iterations), 1)
 
 
 @dataclass
 class DensifyConfig:
     """When and how Gaussians are added and removed."""
 
-    start_iter: int = 300
-    """First iteration at which densification may run."""
-    stop_iter: int = 2000
-    """No densification or opacity reset after this iteration (pruning stops too)."""
+    start: float = 0.1
+    """Densification may run once this fraction of the run (of train.iterations) has passed."""
+    stop: float = 2 / 3
+    """No densification, pruning or opacity reset after this fraction of the run."""
     every: int = 100
-    """Densify and prune every this many iterations."""
+    """Densify and prune every this many iterations (a cadence, not a stage: kept as --iters
+    changes, like 3DGS's 100 from 600 to 30000 iterations)."""
     grad_threshold: float = 0.002
     """Mean absolute screen-space gradient (NDC-scaled, per visible step) above which a Gaussian
     is densified."""
@@ -90,7 +96,19 @@ class DensifyConfig:
     """Prune Gaussians larger than this share of the scene extent."""
     max_screen_radius: float = 0.0
     """Prune Gaussians whose projected radius exceeded this many pixels (0 = no limit)."""
-    opacity_reset_every: int = 3000
-    """Reset opacities to reset_opacity every this many iterations (0 = never)."""
+    opacity_reset_every: float = 0.0
+    """Reset opacities to reset_opacity every this fraction of the run while densification runs
+    (3DGS: 0.1 of its 30000 iterations; 0 = never)."""
     reset_opacity: float = 0.01
     """Opacity ceiling applied by a reset."""
+
+    def window(self, iterations: int) -> tuple[int, int]:
+        """(first, last) iteration of a run of `iterations` steps at which densification, pruning
+        and opacity resets may run."""
+        return max(round(self.start * iterations), 1), round(self.stop * iterations)
+
+    def reset_period(self, iterations: int) -> int:
+        """Iterations between opacity resets in a run of `iterations` steps (0 = no reset)."""
+        if self.opacity_reset_every <= 0:
+            return 0
+        return max(round(self.opacity_reset_every * iterations), 1)

@@ -38,8 +38,9 @@ class InitConfig:
     """Use every stride-th pixel in x and y."""
     max_points: int = 40_000
     """Random subsample to at most this many points (seeded)."""
-    motion_threshold: float = 1.0
-    """MAPF: depth change (scene units) that marks a pixel as moving."""
+    motion_threshold: float = 0.01
+    """MAPF: depth change, as a fraction of the pixel's first depth, that marks it as moving
+    (unit-free: 1 mm at the phantom's 90 mm)."""
     mog_var_threshold: float = 16.0
     """MOGF: MOG2 variance threshold (OpenCV's varThreshold)."""
     monocular_depth: float = 50.0
@@ -106,7 +107,7 @@ def _selected_pixels(scene: Scene, config: InitConfig) -> list[tuple[Frame, Tens
         frame_valid = frame.tissue & (frame.depth > 0) & stride
         new = frame_valid & ~covered
         if config.fusion == "mapf":
-            moved = (frame.depth - first_depth).abs() > config.motion_threshold
+            moved = (frame.depth - first_depth).abs() > config.motion_threshold * first_depth
             new |= frame_valid & moved & first_valid
         else:
             new |= frame_valid & motion

@@ -27,10 +27,14 @@ def no_factor() -> None:
 class DensifyStrategy:
     """Explicit state: grad_sum [N], visible_count [N], max_radius [N] (pixels)."""
 
-    def __init__(self, config: DensifyConfig, scene_extent: float, max_gaussians: int):
+    def __init__(self, config: DensifyConfig, scene_extent: float, max_gaussians: int,
+                 iterations: int):
+        """iterations: the run's length, which the schedule's fractions refer to."""
         self.config = config
         self.scene_extent = scene_extent
         self.max_gaussians = max_gaussians
+        self.first, self.last = config.window(iterations)
+        self.reset_period = config.reset_period(iterations)
         self.grad_sum = torch.zeros(0)
         self.visible_count = torch.zeros(0)
         self.max_radius = torch.zeros(0)
@@ -59,21 +63,21 @@ class DensifyStrategy:
         radii [N] px; opacity_factor() gives the current [N] factor on sigmoid(opacity_logits)
         that rendering applies (None = 1); it is asked only when densifying or resetting."""
         config = self.config
-        if iteration > config.stop_iter:
+        if iteration > self.last:
             return
         self._ensure_size(model.num_gaussians)
         visible = radii > 0  # masked sums, not boolean indexing: no nonzero() per step
         self.grad_sum += torch.where(visible, screen_grad, 0.0)
         self.visible_count += visible
         self.max_radius = torch.maximum(self.max_radius, radii.float())
-        if iteration >= config.start_iter and iteration % config.every == 0:
+        if iteration >= self.first and iteration % config.every == 0:
             self._densify(model, optimizer, opacity_factor())
             self._prune(model, optimizer, opacity_factor())
             self._ensure_size(model.num_gaussians)
             self.grad_sum.zero_()
             self.visible_count.zero_()
             self.max_radius.zero_()
-        if config.opacity_reset_every and iteration % config.opacity_reset_every == 0:
+        if self.reset_period and iteration % self.reset_period == 0:
             self._reset_opacity(model, optimizer)
 
     @torch.no_grad()

@@ -163,7 +163,8 @@ class Trainer:
         check_loss_weights(self.config.losses, self.model.loss_terms())
         self.optimizer, self.schedules = self._build_optimizer()
         budget = self.config.gaussians.cap(info.width, info.height)
-        self.strategy = DensifyStrategy(self.config.densify, self.scene_extent, budget)
+        self.strategy = DensifyStrategy(self.config.densify, self.scene_extent, budget,
+                                        self.config.train.iterations)
         self.frame_generator = torch.Generator().manual_seed(self.config.train.seed)
         self._frame_queue: list[int] = []
         self.background = torch.tensor(self.config.train.background, dtype=torch.float32)
@@ -226,8 +227,9 @@ class Trainer:
         context = RenderContext(frame=frame, when=when, camera=camera, output=output,
                                 state=state, gaussians=self.model.gaussians,
                                 iteration=self.iteration)
+        iterations = self.config.train.iterations
         weights = {name: w.weight for name, w in self.config.losses.items()
-                   if w.weight != 0 and self.iteration >= w.start_iter}
+                   if w.weight != 0 and self.iteration >= w.start_iteration(iterations)}
         terms = self.model.losses(context, frozenset(weights))
         loss = sum(weights[name] * value for name, value in terms.items())
         self.optimizer.zero_grad(set_to_none=True)

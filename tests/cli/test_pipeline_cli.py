@@ -48,7 +48,7 @@ def test_set_and_config_reproduce_a_run(small_phantom, tmp_path, cli):
     first = tmp_path / "first"
     trained = cli("train", "--method", "endoplanar", "--data", str(small_phantom), "--out",
                   str(first), "--set", "train.iterations=5", "--set", "losses.normal.weight=0.5",
-                  "--set", "losses.normal.start_iter=0")
+                  "--set", "losses.normal.start=0")
     assert trained.returncode == 0, trained.stderr
     saved = json.loads((first / "config.json").read_text())
     assert saved["losses"]["normal"]["weight"] == 0.5 and saved["train"]["iterations"] == 5

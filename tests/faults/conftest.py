@@ -12,7 +12,7 @@ from types import SimpleNamespace
 
 import pytest
 
-TRAIN_FAST = ("--set", "init.max_points=1500", "--set", "densify.start_iter=5",
+TRAIN_FAST = ("--set", "init.max_points=1500", "--set", "densify.start=0",
               "--set", "densify.every=5")
 """Settings that keep the phantom runs of these tests to a few seconds."""
 

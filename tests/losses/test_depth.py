@@ -23,8 +23,18 @@ def depths(dtype=torch.float32):
 def test_depth_l1_averages_over_measured_tissue_pixels():
     pred, gt, mask = depths()
     valid = mask & (gt > 0)
-    torch.testing.assert_close(depth_l1(pred, gt, mask), (pred - gt).abs()[valid].mean())
+    expected = (pred - gt).abs()[valid].mean() / gt[valid].median()
+    torch.testing.assert_close(depth_l1(pred, gt, mask), expected)
     assert float(depth_l1(gt, gt, mask)) == 0.0
+
+
+@pytest.mark.parametrize("loss", [depth_l1, inverse_depth_l1, scale_invariant_depth_l1])
+def test_every_form_is_unit_free(loss):
+    """The same scene in metres (depths / 1000) gives the same loss as in millimetres, so one
+    weight suits both (relative tolerance 1e-5, float32)."""
+    pred, gt, mask = depths()
+    torch.testing.assert_close(loss(pred / 1000, gt / 1000, mask), loss(pred, gt, mask),
+                               rtol=1e-5, atol=0)
 
 
 def test_inverse_depth_l1_skips_unmeasured_and_undrawn_pixels():

@@ -12,7 +12,8 @@ from surgsplat.losses.retinex import bright_channel_loss, retinex_loss
 from surgsplat.methods.registry import method_config
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
-from surgsplat.model.lumistate import LumiState, interpolate_in_time
+from surgsplat.model.lumistate import LumiState, LumiStateConfig, interpolate_in_time
+from surgsplat.model.state import GaussianState
 from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import Trainer
 
@@ -65,9 +66,9 @@ def lumistate_method(iterations: int, stage2: int):
     config.train.iterations = iterations
     config.train.checkpoint_every = 1000
     config.init.max_points = 800
-    config.densify.start_iter = iterations + 1
+    config.densify.stop = 0.0  # no densification
     for term in ("retinex", "bright_channel"):
-        config.losses[term].start_iter = stage2
+        config.losses[term].start = stage2 / iterations
     return config
 
 
@@ -137,3 +138,20 @@ def test_decomposition_scores_are_scale_free_and_catch_leaking_light(small_phant
 def test_render_options_are_checked_at_the_boundary(tmp_path, cli, one_error_line):
     line = one_error_line(cli("render", str(tmp_path), "--channels", "rgb,albedo"))
     assert "--channels" in line and "reflectance" in line
+
+
+def test_colour_modulation_sends_no_gradient_to_the_means():
+    """Hypothesis 15 of issue 28: the positional encoding's input is detached, as in the
+    Deformable-3DGS family, so the colour loss moves colours, not geometry."""
+    torch.manual_seed(0)
+    component = LumiState(LumiStateConfig(num_frames=2, map_height=8, map_width=8)).eval()
+    torch.nn.init.normal_(component.fusion.last.weight, std=0.1)  # a modulation that varies
+    means = torch.randn(6, 3, requires_grad=True)
+    sh = torch.randn(6, 4, 3, requires_grad=True)
+    state = GaussianState(means=means, scales=torch.ones(6, 3), quats=torch.ones(6, 4),
+                          opacities=torch.ones(6), sh=sh, sh_degree=1)
+    modulated = component.transform(state, None, FrameTime(0, 0.0))
+    modulated.sh.square().sum().backward()
+    assert means.grad is None
+    assert sh.grad.abs().min() > 0.0  # the colours do get the gradient
+    assert component.fusion.last.weight.grad.abs().max() > 0.0  # and so does the MLP

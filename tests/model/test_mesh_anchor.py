@@ -235,7 +235,7 @@ def test_a_tiny_drawer_run_keeps_its_gaussians_in_the_band_of_the_mesh(small_pha
     config.components["anchor"].resolution = 64
     config.components["sdf"].fit_steps = 40
     config.components["recorder"] = StepRecorderConfig()
-    config.densify.start_iter, config.densify.every = 4, 4  # densify before the last re-anchor
+    config.densify.start, config.densify.every = 0.5, 4  # densify before the last re-anchor
     STEPS_SEEN.clear()
     trainer = Trainer(config, scene, tmp_path / "run")
     count = trainer.model.gaussians.num_gaussians

@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import pytest
 import torch
 from torch import Tensor
 
@@ -24,15 +25,18 @@ def setup(log_scales: list[float], opacities: list[float]):
     return model, optimizer
 
 
-CONFIG = DensifyConfig(start_iter=1, stop_iter=100, every=1, grad_threshold=0.5,
+CONFIG = DensifyConfig(start=0.0, stop=1.0, every=1, grad_threshold=0.5,
                        percent_dense=0.01, opacity_reset_every=0)
+ITERATIONS = 100
+"""Length of the runs the strategies of these tests are built for."""
 
 
 def test_clone_small_and_split_large_high_gradient_gaussians():
     # extent 100 (split above scale 1, prune above 10): Gaussian 0 (scale 0.5) is small,
     # 1 (scale 2) is large, 2 has a low gradient.
     model, optimizer = setup([math.log(0.5), math.log(2.0), math.log(0.5)], [0.9, 0.9, 0.9])
-    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100)
+    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100,
+                               iterations=ITERATIONS)
     grads = torch.tensor([1.0, 1.0, 0.1])
     strategy.step_post_backward(1, model, optimizer, grads, torch.tensor([5, 5, 5]))
     # 0 and 2 stay, 0 gains a clone, 1 is replaced by two children of scale 2 / 1.6.
@@ -49,7 +53,8 @@ def test_clone_small_and_split_large_high_gradient_gaussians():
 
 def test_prune_transparent_and_oversized():
     model, optimizer = setup([0.0, 0.0, math.log(20.0)], [0.001, 0.9, 0.9])
-    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100)
+    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100,
+                               iterations=ITERATIONS)
     strategy.step_post_backward(1, model, optimizer, torch.zeros(3), torch.tensor([1, 1, 1]))
     assert model.num_gaussians == 1
     assert torch.sigmoid(model.params["opacity_logits"][0]) > 0.5
@@ -57,27 +62,47 @@ def test_prune_transparent_and_oversized():
 
 def test_cap_limits_growth():
     model, optimizer = setup([math.log(0.1)] * 4, [0.9] * 4)
-    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=6)
+    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=6,
+                               iterations=ITERATIONS)
     strategy.step_post_backward(1, model, optimizer, torch.ones(4), torch.ones(4, dtype=torch.int32))
     assert model.num_gaussians == 6
 
 
 def test_opacity_reset_caps_opacity():
     model, optimizer = setup([0.0, 0.0], [0.9, 0.005])
-    config = DensifyConfig(start_iter=1000, stop_iter=2000, opacity_reset_every=5,
-                           reset_opacity=0.01)
-    strategy = DensifyStrategy(config, scene_extent=10.0, max_gaussians=100)
+    config = DensifyConfig(start=0.5, stop=1.0, opacity_reset_every=0.05, reset_opacity=0.01)
+    strategy = DensifyStrategy(config, scene_extent=10.0, max_gaussians=100,
+                               iterations=ITERATIONS)
     for iteration in range(1, 6):
         strategy.step_post_backward(iteration, model, optimizer, torch.zeros(2), torch.ones(2))
     opacity = torch.sigmoid(model.params["opacity_logits"])
     assert torch.allclose(opacity, torch.tensor([0.01, 0.005]), atol=1e-6)
 
 
+@pytest.mark.parametrize("iterations", [300, 3000, 30000])
+def test_opacity_resets_fire_at_their_fraction_of_the_run_and_only_while_densifying(iterations):
+    """The reset period and the densification window are fractions of the run: a reset every
+    0.3 of it with densification up to 2/3 fires at 0.3 and 0.6 of any length, never after."""
+    config = DensifyConfig(start=0.1, stop=2 / 3, every=10**9, opacity_reset_every=0.3,
+                           grad_threshold=1e9, min_opacity=0.0)
+    model, optimizer = setup([0.0], [0.9])
+    strategy = DensifyStrategy(config, scene_extent=10.0, max_gaussians=100,
+                               iterations=iterations)
+    fired = []
+    for iteration in range(1, iterations + 1):
+        model.params["opacity_logits"].data.fill_(2.0)  # sigmoid 0.88: a reset caps it at 0.01
+        strategy.step_post_backward(iteration, model, optimizer, torch.zeros(1), torch.ones(1))
+        if torch.sigmoid(model.params["opacity_logits"][0]) < 0.02:
+            fired.append(iteration)
+    assert fired == [round(0.3 * iterations), 2 * round(0.3 * iterations)]
+
+
 def test_prune_and_clone_act_on_the_rendered_opacity_with_a_factor():
     # Gaussian 0 has logit opacity 0.9 but a component factor of 0.001: rendered 0.0009 -> pruned.
     # Gaussian 1 (factor 0.5, rendered 0.45) is cloned: the pair composites to 0.45 rendered.
     model, optimizer = setup([math.log(0.5), math.log(0.5)], [0.9, 0.9])
-    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100)
+    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100,
+                               iterations=ITERATIONS)
     # the factor of the Gaussians present when asked (a clone is appended with its parent's 0.5)
     strategy.step_post_backward(
         1, model, optimizer, torch.tensor([0.0, 1.0]), torch.ones(2),
@@ -99,7 +124,8 @@ def split_one(scales: list[float], quat: list[float],
     rotation = quaternion_to_matrix(model.params["quats"][0].detach())
     covariance = rotation @ torch.diag(torch.tensor(scales) ** 2) @ rotation.T
     config = dataclasses.replace(CONFIG, split=split)
-    strategy = DensifyStrategy(config, scene_extent=100.0, max_gaussians=100)
+    strategy = DensifyStrategy(config, scene_extent=100.0, max_gaussians=100,
+                               iterations=ITERATIONS)
     strategy.step_post_backward(1, model, optimizer, torch.ones(1), torch.ones(1))
     assert model.num_gaussians == 2
     return model, covariance

@@ -66,7 +66,7 @@ def toy_method(iterations: int):
     config.losses["toy"] = LossWeight(1.0)
     config.train.iterations = iterations
     config.init.max_points = 3000
-    config.densify.start_iter = 10
+    config.densify.start = 0.0
     config.densify.every = 10
     config.train.checkpoint_every = 1000
     return config
@@ -144,7 +144,7 @@ def test_densify_weights_and_opacity_factor_reach_the_strategy(small_phantom, tm
     scene = load_scene(small_phantom)
     config = toy_method(10)
     config.components["frozen"] = FrozenGrowthConfig()
-    config.densify.start_iter, config.densify.every = 5, 5
+    config.densify.start, config.densify.stop, config.densify.every = 0.0, 1.0, 5
     config.densify.grad_threshold = 0.0
     config.densify.min_opacity = 0.3
     trainer = Trainer(config, scene, tmp_path / "frozen")

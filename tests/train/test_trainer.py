@@ -22,7 +22,7 @@ def small_config(name: str, iterations: int):
     config = method_config(name)
     config.train.iterations = iterations
     config.init.max_points = 4000
-    config.densify.start_iter = 10
+    config.densify.start = 0.0
     config.densify.every = 10
     return config
 
@@ -45,7 +45,7 @@ def test_loss_falls(small_phantom, tmp_path, method):
     logged = [json.loads(line) for line in (tmp_path / "run" / LOG_FILE).read_text().splitlines()]
     assert logged[-1]["iteration"] == 60
     assert set(logged[-1]["terms"]) == {name for name, weight in saved["losses"].items()
-                                        if weight["weight"] and weight["start_iter"] <= 60}
+                                        if weight["weight"] and weight["start"] * 60 <= 60}
 
 
 def test_resume_continues_exactly(small_phantom, tmp_path):

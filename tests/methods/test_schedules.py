@@ -1,0 +1,31 @@
+"""Every preset's schedule is written as fractions of the run, so `--iters` from 300 to 30000
+runs every stage of it: each weighted loss term joins before the end, densification runs, and
+opacity resets (where the preset has them) fire while it does."""
+
+import pytest
+
+from surgsplat.methods.registry import PRESETS, method_config
+
+
+@pytest.mark.parametrize("iterations", [300, 3000, 30000])
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_every_stage_of_every_preset_runs_at_any_length(name, iterations):
+    config = method_config(name)
+    for term, weight in config.losses.items():
+        if weight.weight:
+            assert 1 <= weight.start_iteration(iterations) < iterations, term
+    densify = config.densify
+    first, last = densify.window(iterations)
+    densifying = [k for k in range(first, last + 1) if k % densify.every == 0]
+    assert densifying and last < iterations
+    period = densify.reset_period(iterations)
+    if period:
+        assert any(first <= k <= last for k in range(period, iterations + 1, period))
+
+
+def test_stages_move_with_the_run_length():
+    """LumiState's Stage 2 starts at a third of any run (it did not start at all below 1000
+    iterations when it was an absolute iteration)."""
+    config = method_config("lumistate")
+    assert [config.losses["retinex"].start_iteration(n) for n in (300, 800, 3000)] == \
+        [100, 267, 1000]
