@@ -3,12 +3,24 @@ then `surgsplat eval` in its own process (so train seconds, wall time including 
 peak RSS are each run's own).
 
     python benchmarks/bench_methods.py --suite NAME [--json] [--iters N] [--work DIR]
-                                       [--cases NAME ...]
+                                       [--cases NAME ...] [--seeds S ...] [--jobs J] [--merge]
 
-A suite lists its cases, the metrics it reports and its baseline case; every ratio is against
-that baseline in the same run. Results go to
+A suite lists its cases, the metrics it reports and the case each row is compared with (its
+`base`, or the suite's baseline); every ratio is against a row of the same results file. With
+several `--seeds`, every case runs once per seed (`train.seed` and `init.seed`) and the report
+has one row per case with the mean of each metric and the values of each seed
+(`<metric>_seeds`). `--jobs J` trains J cases at once, each with `--threads` = CPUs / J;
+`--merge` keeps the rows of the results file that this invocation does not run again, so a
+long suite can be run in parts. Results go to
 benchmarks/results/bench_methods_<suite>-<cpu>-<best ISA>.json and become the README region
 `bench_methods_<suite>` (benchmarks/readme_tables.py).
+
+Suite `fidelity` (issue 28): every paper preset beside the preset it extends, at its own full
+schedule (the preset's `train.iterations`, 3000): endogsg and physiosplat beside endogaussian,
+endoplanar and lumistate beside deform3dgs, drawer beside endogsg; lumistate and deform3dgs on
+the livar and hivar lighting phantoms; every preset once more on the moving-camera phantom,
+beside deform3dgs there. Its TARGETS are checked in the report (`targets`: each with the
+measured value, the bound and whether it is met), on the means over the seeds.
 
 Suite `endogsg` (issue 13): deform3dgs, endogaussian and endoplanar beside endogsg and its
 ablations of Endo-GSG Table 4 (without the depth loss, without projection and orientation,
@@ -25,7 +37,7 @@ dB, median normal error <= 5 deg, depth_rmse_mm no worse than deform3dgs, traini
 Suite `lumistate` (issue 15): deform3dgs (whose exposure curve is the exposure-only model) and
 lumistate on the livar and hivar phantoms, and lumistate on hivar with Stage 1 only (Retinex and
 bright-channel losses off); ratios against deform3dgs on the same phantom. Stage 2 starts at
-iteration LUMISTATE_STAGE2_ITER, a third of the --iters 400 the suite is run with. Targets
+a third of the run, whatever --iters is. Targets
 (hivar): lumistate psnr_tissue >= deform3dgs + 1 dB, reflectance_error and r_var <= 0.5 x
 deform3dgs's (the naive baseline: its rendered colour scored as reflectance); livar: no PSNR
 loss over 0.3 dB; training time <= 1.5 x deform3dgs.
@@ -47,16 +59,20 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import os
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_render import results_path  # noqa: E402
 
+from surgsplat.atomic import write_text_atomic  # noqa: E402
 from surgsplat.render.native import system_info  # noqa: E402
 
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
@@ -74,6 +90,7 @@ class Case:
     phantom: str  # key of PHANTOMS
     settings: tuple[str, ...] = ()  # --set assignments
     export_mesh: bool = False  # also time `surgsplat export --mesh` of every frame
+    base: str | None = None  # case this row's ratios refer to (None: the suite's baseline)
 
 
 PHANTOMS = {"pulling": ("--preset", "full", "--motion", "pulling"),
@@ -81,10 +98,6 @@ PHANTOMS = {"pulling": ("--preset", "full", "--motion", "pulling"),
                                       "--camera", "moving"),
             "livar": ("--preset", "full", "--motion", "pulling", "--lighting", "livar"),
             "hivar": ("--preset", "full", "--motion", "pulling", "--lighting", "hivar")}
-LUMISTATE_STAGE2_ITER = 133
-"""Stage 2 start of the lumistate suite's runs (a third of its --iters 400)."""
-LUMISTATE_STAGES = tuple(f"losses.{term}.start_iter={LUMISTATE_STAGE2_ITER}"
-                         for term in ("retinex", "bright_channel"))
 STAGE1_ONLY = ("losses.retinex.weight=0", "losses.bright_channel.weight=0")
 
 
@@ -97,6 +110,7 @@ class Suite:
     baseline: str  # name of the case ratios are taken against
     ratio_metrics: tuple[str, ...] = ()  # metrics also reported as <key>_ratio to the baseline
     baseline_by_phantom: bool = False  # ratios against the baseline's method on each row's phantom
+    targets: tuple["Target", ...] = ()  # checked on the rows in the report
 
 
 PHYSIOSPLAT_WITHOUT_BIOMECHANICS = (
@@ -104,7 +118,110 @@ PHYSIOSPLAT_WITHOUT_BIOMECHANICS = (
     "components.deformation.volume_samples=0", "losses.volume=null")
 PHYSIOSPLAT_WITHOUT_SPECULAR = ("components.specular=null", "gaussians.sh_degree=1")
 
+
+FIDELITY_PRESETS = {"endogsg": "endogaussian", "physiosplat": "endogaussian",
+                    "endoplanar": "deform3dgs", "lumistate": "deform3dgs", "drawer": "endogsg"}
+"""Each paper preset and the preset it extends (its base)."""
+FIDELITY_CASES = (
+    Case("deform3dgs", "deform3dgs", "pulling"),
+    Case("endogaussian", "endogaussian", "pulling", base="deform3dgs"),
+    *(Case(name, name, "pulling", base=base, export_mesh=name in ("endogsg", "drawer"))
+      for name, base in FIDELITY_PRESETS.items()),
+    Case("deform3dgs-livar", "deform3dgs", "livar"),
+    Case("lumistate-livar", "lumistate", "livar", base="deform3dgs-livar"),
+    Case("deform3dgs-hivar", "deform3dgs", "hivar"),
+    Case("lumistate-hivar", "lumistate", "hivar", base="deform3dgs-hivar"),
+    Case("deform3dgs-moving", "deform3dgs", "pulling-moving-camera"),
+    *(Case(f"{name}-moving", name, "pulling-moving-camera", base="deform3dgs-moving")
+      for name in ("endogaussian", *FIDELITY_PRESETS)),
+)
+
+
+@dataclass(frozen=True)
+class Target:
+    """A bound on one metric of one case: value >= bound (at_least) or <= bound, where the
+    bound is `limit` alone, or `limit` added to (relative=False, e.g. dB) or multiplied by
+    (relative=True) the references' value: the largest of them for at_least, else the
+    smallest."""
+
+    case: str
+    metric: str
+    at_least: bool
+    limit: float
+    references: tuple[str, ...] = ()
+    relative: bool = False
+    reference_metric: str | None = None  # the references' metric, when not `metric`
+
+    def check(self, rows: dict[str, dict]) -> dict | None:
+        """The target as measured on `rows` (by case), or None when a row or value is missing."""
+        value = rows.get(self.case, {}).get(self.metric)
+        key = self.reference_metric or self.metric
+        refs = [rows.get(name, {}).get(key) for name in self.references]
+        if value is None or any(ref is None for ref in refs):
+            return None
+        bound = self.limit
+        if refs:
+            ref = max(refs) if self.at_least else min(refs)
+            bound = ref * self.limit if self.relative else ref + self.limit
+        met = value >= bound if self.at_least else value <= bound
+        return {"case": self.case, "metric": self.metric, "value": value,
+                "relation": ">=" if self.at_least else "<=", "bound": round(bound, 4),
+                "rule": self.describe(), "met": bool(met)}
+
+    def describe(self) -> str:
+        relation = ">=" if self.at_least else "<="
+        if not self.references:
+            return f"{self.metric} {relation} {self.limit:g}"
+        refs = " / ".join(self.references)
+        ref = f"max({refs})" if self.at_least and len(self.references) > 1 else refs
+        if self.reference_metric:
+            ref = f"{ref}.{self.reference_metric}"
+        bound = f"{self.limit:g} x {ref}" if self.relative else f"{ref} {self.limit:+g}"
+        return f"{self.metric} {relation} {bound}"
+
+
+def preset_targets(name: str, base: str) -> tuple[Target, ...]:
+    """What every preset must deliver beside its base (issue 28): tissue PSNR within 0.3 dB of
+    the better of deform3dgs and the base, and at most 1.5x the base's training time."""
+    references = tuple(dict.fromkeys(("deform3dgs", base)))
+    return (Target(name, "psnr_tissue", True, -0.3, references),
+            Target(name, "train_seconds", False, 1.5, (base,), relative=True))
+
+
+FIDELITY_TARGETS = (
+    *(target for name, base in FIDELITY_PRESETS.items() for target in preset_targets(name, base)),
+    Target("endogsg", "gaussians_p2s_weighted_median_mm", False, 0.5, ("endogaussian",),
+           relative=True),
+    Target("endogsg", "mesh_p2s_median_mm", False, 0.3),
+    Target("endogsg", "psnr_occluded", True, 0.0, ("endogaussian",)),
+    Target("physiosplat", "psnr_occluded", True, 1.0, ("endogaussian",)),
+    Target("physiosplat", "depth_rmse_occluded_mm", False, 0.8, ("endogaussian",), relative=True),
+    Target("physiosplat", "psnr_specular", True, 1.0, ("endogaussian",)),
+    Target("physiosplat", "collisions", False, 1.0, ("physiosplat",), relative=True,
+           reference_metric="collisions_ground_truth"),
+    Target("lumistate-hivar", "psnr_tissue", True, 0.5, ("deform3dgs-hivar",)),
+    Target("lumistate-livar", "psnr_tissue", True, -0.2, ("deform3dgs-livar",)),
+    Target("lumistate-hivar", "reflectance_error", False, 0.5, ("deform3dgs-hivar",),
+           relative=True),
+    Target("endoplanar", "normal_error_deg_median", False, 0.5, ("deform3dgs",), relative=True),
+    Target("endoplanar", "depth_rmse_mm", False, 1.0, ("deform3dgs",), relative=True),
+    Target("drawer", "mesh_p2s_median_mm", False, 0.3),
+    Target("drawer", "hinge_axis_error_deg", False, 5.0),
+    Target("drawer", "jaw_angle_rmse_deg", False, 3.0),
+)
+"""Issue 28's targets on the full phantom; reflectance_error's "naive" reference is deform3dgs's
+rendered colour scored as reflectance on the same phantom."""
+
+
 SUITES = {
+    "fidelity": Suite(
+        cases=FIDELITY_CASES,
+        metrics=("psnr_tissue", "psnr_tissue_gain", "psnr_occluded", "depth_rmse_occluded_mm",
+                 "psnr_specular", "depth_rmse_mm", "normal_error_deg_median",
+                 "gaussians_p2s_median_mm", "gaussians_p2s_weighted_median_mm",
+                 "mesh_p2s_median_mm", "reflectance_error", "collisions",
+                 "hinge_axis_error_deg", "jaw_angle_rmse_deg"),
+        baseline="deform3dgs", targets=FIDELITY_TARGETS),
     "endoplanar": Suite(
         cases=(
             Case("deform3dgs", "deform3dgs", "pulling"),
@@ -147,9 +264,9 @@ SUITES = {
     "lumistate": Suite(
         cases=(
             Case("deform3dgs-livar", "deform3dgs", "livar"),
-            Case("lumistate-livar", "lumistate", "livar", LUMISTATE_STAGES),
+            Case("lumistate-livar", "lumistate", "livar"),
             Case("deform3dgs-hivar", "deform3dgs", "hivar"),
-            Case("lumistate-hivar", "lumistate", "hivar", LUMISTATE_STAGES),
+            Case("lumistate-hivar", "lumistate", "hivar"),
             Case("lumistate-hivar-stage1-only", "lumistate", "hivar", STAGE1_ONLY),
         ),
         metrics=("psnr_tissue", "psnr_tissue_gain", "ssim", "reflectance_error",
@@ -187,34 +304,65 @@ def phantom_dir(work: Path, key: str) -> Path:
     return folder
 
 
-def run_case(case: Case, work: Path, iterations: int | None) -> dict:
+def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
+             threads: int) -> dict:
+    """Train and evaluate `case` (with `seed` for training and initialisation when given) in
+    processes of their own, with `threads` threads; its metrics.json as a row."""
     scene = phantom_dir(work, case.phantom)
-    run_dir = work / f"run-{case.name}"
+    run_dir = work / (f"run-{case.name}" if seed is None else f"run-{case.name}-seed{seed}")
     subprocess.run(["rm", "-rf", str(run_dir)], check=True)
-    options = [arg for setting in case.settings for arg in ("--set", setting)]
+    settings = case.settings + (() if seed is None else (f"train.seed={seed}", f"init.seed={seed}"))
+    options = [arg for setting in settings for arg in ("--set", setting)]
     if iterations:
         options += ["--iters", str(iterations)]
+    threading = ("--threads", str(threads))
     started = time.perf_counter()
-    surgsplat("train", "--method", case.method, "--data", str(scene), "--out", str(run_dir),
-              *options)
+    surgsplat(*threading, "train", "--method", case.method, "--data", str(scene), "--out",
+              str(run_dir), *options)
     wall = time.perf_counter() - started
-    surgsplat("eval", str(run_dir))
+    surgsplat(*threading, "eval", str(run_dir))
     metrics = json.loads((run_dir / "metrics.json").read_text())
     if case.export_mesh:
         started = time.perf_counter()
-        surgsplat("export", str(run_dir), "--mesh", "--frames", "all")
+        surgsplat(*threading, "export", str(run_dir), "--mesh", "--frames", "all")
         metrics["mesh_export_seconds"] = time.perf_counter() - started
-    row = {"case": case.name, "method": case.method, "phantom": case.phantom,
-           "settings": list(case.settings), "iterations": metrics["iteration"],
-           "wall_seconds": round(wall, 1)}
+    row = {"case": case.name, "method": case.method, "phantom": case.phantom, "base": case.base,
+           "settings": list(case.settings), "seed": seed, "iterations": metrics["iteration"],
+           "wall_seconds": round(wall, 1), "threads": threads,
+           "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     row.update({key: value for key, value in metrics.items()
                 if isinstance(value, (int, float)) and key not in row})
     return row
 
 
+def mean_over_seeds(rows: list[dict]) -> list[dict]:
+    """One row per case: each number the mean over the case's seeds, with the seeds' values in
+    `<key>_seeds` (in seed order) when there is more than one."""
+    cases: dict[str, list[dict]] = {}
+    for row in rows:
+        cases.setdefault(row["case"], []).append(row)
+    merged = []
+    for runs in cases.values():
+        runs.sort(key=lambda row: -1 if row.get("seed") is None else row["seed"])
+        row = dict(runs[0])
+        row["seeds"] = [run.get("seed") for run in runs]
+        for key, value in runs[0].items():
+            values = [run.get(key) for run in runs]
+            if (isinstance(value, (int, float)) and not isinstance(value, bool) and key != "seed"
+                    and all(isinstance(v, (int, float)) for v in values)):
+                row[key] = statistics.fmean(values)
+                if len(runs) > 1:
+                    row[f"{key}_seeds"] = values
+        row.pop("seed", None)
+        merged.append(row)
+    return merged
+
+
 def baseline_row(rows: list[dict], row: dict, suite: Suite) -> dict | None:
-    """The row `row` is compared with: the suite's baseline case, or with baseline_by_phantom
-    the baseline's method on `row`'s phantom."""
+    """The row `row` is compared with: its case's base, else the suite's baseline case, or with
+    baseline_by_phantom the baseline's method on `row`'s phantom."""
+    if row.get("base"):
+        return next((r for r in rows if r["case"] == row["base"]), None)
     base = next((r for r in rows if r["case"] == suite.baseline), None)
     if base is not None and suite.baseline_by_phantom:
         base = next((r for r in rows if r["method"] == base["method"]
@@ -244,6 +392,21 @@ def print_table(rows: list[dict], columns: tuple[str, ...]) -> None:
                          for k in keys))
 
 
+def run_all(cases: list[Case], seeds: list[int | None], args: argparse.Namespace) -> list[dict]:
+    """Every (case, seed) run, `args.jobs` at a time; each row printed as it finishes."""
+    threads = max((os.cpu_count() or 1) // args.jobs, 1)
+    runs = [(case, seed) for seed in seeds for case in cases]
+    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        futures = [pool.submit(run_case, case, args.work, args.iters, seed, threads)
+                   for case, seed in runs]
+        rows = []
+        for future in futures:
+            rows.append(future.result())
+            print(json.dumps(rows[-1]) if args.json else
+                  f"done: {rows[-1]['case']} seed {rows[-1]['seed']}", flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " "))
     parser.add_argument("--suite", required=True, choices=sorted(SUITES))
@@ -253,44 +416,60 @@ def main() -> None:
                         default=Path(tempfile.gettempdir()) / "surgsplat-bench-methods")
     parser.add_argument("--cases", nargs="+", default=None,
                         help="run only these cases of the suite (default: all)")
+    parser.add_argument("--seeds", nargs="+", type=int, default=None,
+                        help="run every case once per seed (default: the presets' seed, once)")
+    parser.add_argument("--jobs", type=int, default=1, help="cases trained at once")
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the result file's rows of the cases and seeds not run now")
     parser.add_argument("--out", type=Path, default=None, help="result file (default "
                         "benchmarks/results/bench_methods_<suite>-<cpu>-<best ISA>.json)")
     parser.add_argument("--collect", type=Path, default=None, metavar="LOG",
                         help="run nothing: write the report from the rows an interrupted "
                              "`--json` run printed to LOG (its cases that finished)")
     args = parser.parse_args()
+    if args.jobs < 1:
+        parser.error("--jobs must be at least 1")
     suite = SUITES[args.suite]
     names = [case.name for case in suite.cases]
     unknown = set(args.cases or ()) - set(names)
     if unknown:
         parser.error(f"suite {args.suite} has no case {sorted(unknown)}; it has {names}")
+    info = system_info()
+    out = args.out or results_path(f"bench_methods_{args.suite}", info)
     if args.collect:
-        rows = [json.loads(line) for line in args.collect.read_text().splitlines()
+        runs = [json.loads(line) for line in args.collect.read_text().splitlines()
                 if line.startswith('{"case"')]
     else:
         args.work.mkdir(parents=True, exist_ok=True)
-        rows = []
-        for case in suite.cases:
-            if args.cases is None or case.name in args.cases:
-                rows.append(run_case(case, args.work, args.iters))
-                print(json.dumps(rows[-1]) if args.json else f"done: {rows[-1]['case']}",
-                      flush=True)
+        chosen = [case for case in suite.cases if args.cases is None or case.name in args.cases]
+        runs = run_all(chosen, args.seeds or [None], args)
+    commands = [" ".join(["python", "benchmarks/bench_methods.py", *sys.argv[1:]])]
+    if args.merge and out.is_file():
+        previous = json.loads(out.read_text())
+        done = {(run["case"], run.get("seed")) for run in runs}
+        runs = [run for run in previous.get("runs", previous["rows"])
+                if (run["case"], run.get("seed")) not in done] + runs
+        commands = previous.get("commands", [previous["command"]]) + commands
+    order = {name: i for i, name in enumerate(names)}
+    runs.sort(key=lambda run: (order.get(run["case"], len(order)), run.get("seed") or 0))
+    rows = mean_over_seeds(runs)
     add_ratios(rows, suite)
+    by_case = {row["case"]: row for row in rows}
+    checked = [result for target in suite.targets
+               if (result := target.check(by_case)) is not None]
     columns = suite.metrics + RUN_COLUMNS
-    info = system_info()
     report = {"benchmark": "bench_methods", "suite": args.suite, "columns": list(columns),
               "cpu": info["cpu"], "system": info,
               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-              "command": " ".join(["python", "benchmarks/bench_methods.py", *sys.argv[1:]]),
-              "rows": rows}
-    if args.collect:
-        done = {row["case"] for row in rows}
-        report["note"] = ("collected from the rows printed by an interrupted run; cases not "
-                          "finished: " + (", ".join(case.name for case in suite.cases
-                                                    if case.name not in done) or "none"))
-    out = args.out or results_path(f"bench_methods_{args.suite}", info)
+              "command": commands[-1], "commands": commands, "rows": rows, "runs": runs}
+    if checked:
+        report["targets"] = checked
+    missing = [case.name for case in suite.cases if case.name not in by_case]
+    if args.collect or missing:
+        report["note"] = ("cases not measured: " + ", ".join(missing)) if missing else \
+            "collected from the rows printed by an interrupted run"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2) + "\n")
+    write_text_atomic(out, json.dumps(report, indent=2) + "\n")
     if not args.json:
         print_table(rows, columns)
     print(f"results: {out}")

@@ -106,6 +106,18 @@ def methods_table(report: dict) -> str:
     for row in report["rows"]:
         cells = [cell(row, key, metric_format(key)) for key in columns]
         lines.append(f"| {row['case']} | " + " | ".join(cells) + " |")
+    seeds = {tuple(row.get("seeds") or ()) for row in report["rows"]}
+    if any(len(case_seeds) > 1 for case_seeds in seeds):
+        lines += ["", "Each figure is the mean over the seeds "
+                  + ", ".join(str(list(case_seeds)) for case_seeds in sorted(seeds))
+                  + "; each seed's value is in the JSON (`<metric>_seeds`)."]
+    if report.get("targets"):
+        lines += ["", "| case | target | measured | bound | met |", "|---|---|---|---|---|"]
+        for target in report["targets"]:
+            spec = metric_format(target["metric"])
+            lines.append(f"| {target['case']} | {target['rule']} "
+                         f"| {cell(target, 'value', spec)} | {cell(target, 'bound', spec)} "
+                         f"| {'yes' if target['met'] else '**no**'} |")
     if "note" in report:
         lines += ["", report["note"]]
     return "\n".join(lines)

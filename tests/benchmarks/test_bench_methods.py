@@ -1,0 +1,38 @@
+"""The method benchmark's bookkeeping: means over seeds and the targets it checks."""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+from bench_methods import (FIDELITY_CASES, FIDELITY_TARGETS, Target,  # noqa: E402
+                           mean_over_seeds)
+
+from surgsplat.methods.registry import PRESETS  # noqa: E402
+
+
+def test_seeds_are_averaged_and_kept():
+    runs = [{"case": "a", "seed": 1, "psnr_tissue": 30.0, "settings": []},
+            {"case": "a", "seed": 0, "psnr_tissue": 32.0, "settings": []},
+            {"case": "b", "seed": 0, "psnr_tissue": 20.0, "settings": []}]
+    rows = {row["case"]: row for row in mean_over_seeds(runs)}
+    assert rows["a"]["psnr_tissue"] == 31.0 and rows["a"]["psnr_tissue_seeds"] == [32.0, 30.0]
+    assert rows["a"]["seeds"] == [0, 1] and "seed" not in rows["a"]
+    assert rows["b"]["psnr_tissue"] == 20.0 and "psnr_tissue_seeds" not in rows["b"]
+
+
+def test_targets_take_the_stricter_reference_and_say_whether_they_are_met():
+    rows = {"base": {"psnr_tissue": 30.0, "train_seconds": 100.0},
+            "other": {"psnr_tissue": 31.0},
+            "method": {"psnr_tissue": 30.8, "train_seconds": 160.0}}
+    psnr = Target("method", "psnr_tissue", True, -0.3, ("base", "other")).check(rows)
+    assert psnr["bound"] == 30.7 and psnr["met"]
+    time = Target("method", "train_seconds", False, 1.5, ("base",), relative=True).check(rows)
+    assert time["bound"] == 150.0 and not time["met"]
+    assert Target("method", "psnr_occluded", True, 0.0, ("base",)).check(rows) is None
+
+
+def test_every_fidelity_target_names_a_case_of_the_suite_and_every_preset_is_measured():
+    cases = {case.name for case in FIDELITY_CASES}
+    assert all({target.case, *target.references} <= cases for target in FIDELITY_TARGETS)
+    assert set(PRESETS) <= {case.method for case in FIDELITY_CASES}
+    assert all(case.base in cases for case in FIDELITY_CASES if case.base)
