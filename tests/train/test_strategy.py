@@ -79,7 +79,7 @@ def test_opacity_reset_caps_opacity():
     assert torch.allclose(opacity, torch.tensor([0.01, 0.005]), atol=1e-6)
 
 
-@pytest.mark.parametrize("iterations", [300, 3000, 30000])
+@pytest.mark.parametrize("iterations", [300, 3000])
 def test_opacity_resets_fire_at_their_fraction_of_the_run_and_only_while_densifying(iterations):
     """The reset period and the densification window are fractions of the run: a reset every
     0.3 of it with densification up to 2/3 fires at 0.3 and 0.6 of any length, never after."""
