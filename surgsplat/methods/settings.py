@@ -98,7 +98,9 @@ class DensifyConfig:
     """Prune Gaussians whose projected radius exceeded this many pixels (0 = no limit)."""
     opacity_reset_every: float = 0.0
     """Reset opacities to reset_opacity every this fraction of the run while densification runs
-    (3DGS: 0.1 of its 30000 iterations; 0 = never)."""
+    (3DGS: 0.1 of its 30000 iterations; 0 = never). Never by default: on the full phantom
+    (deform3dgs, 3000 iterations, one seed) resets at 0.3 and 0.6 of the run cost 0.45 dB of
+    psnr_tissue (39.09 against 39.53) and raised the Gaussian P2S median from 0.391 to 0.409 mm."""
     reset_opacity: float = 0.01
     """Opacity ceiling applied by a reset."""
 
