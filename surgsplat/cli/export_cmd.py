@@ -66,8 +66,8 @@ def export_command(
         help="Marching-cubes cells along the SDF box's longest side.")] = MeshOptions.resolution,
     mesh_fit_radius: Annotated[float, typer.Option(
         help="SDF meshes: each vertex moves along its normal onto the canonical tissue "
-             "Gaussians within this many marching-cubes cells; 0 keeps the SDF's zero "
-             "level.")] = MeshOptions.fit_radius,
+             "Gaussians within this many marching-cubes cells; 0 (default) keeps the SDF's "
+             "zero level.")] = MeshOptions.fit_radius,
     mesh_format: Annotated[str, typer.Option(
         "--format", help=f"Mesh file format: {', '.join(MESH_FORMATS)}.")] = "ply",
     sim: Annotated[Path | None, typer.Option(

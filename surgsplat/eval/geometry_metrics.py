@@ -12,6 +12,11 @@ sampled uniformly by area (`sample_surface`, seeded):
 - `fscore_1mm` (Tatarchenko et al. 2019): precision = share of P with p2s <= 1 mm; recall = share
   of S within 1 mm of its nearest point of P; F = 2 P R / (P + R), and 0 when both are 0.
 
+Weighted statistics of per-point distances d_i with weights w_i >= 0 (`weighted_mean_median`):
+the mean sum w_i d_i / sum w_i, and the weighted median, the smallest d_k (in ascending order)
+whose cumulative weight reaches half the total (the lower weighted median; equal weights give the
+lower of the two middle values).
+
 Accepts numpy arrays or CPU tensors and computes in float64 with numpy / SciPy.
 """
 
@@ -179,6 +184,22 @@ def geometry_metrics(points, vertices, faces, seed: int = 0,
         "p2s_p95_mm": float(np.percentile(p2s, 95)),
         "fscore_1mm": 2 * precision * recall / total if total > 0 else 0.0,
     }
+
+
+def weighted_mean_median(values, weights) -> tuple[float, float]:
+    """Weighted mean and lower weighted median (module docstring) of values [N] with weights
+    [N] >= 0 whose sum is positive."""
+    values = np.asarray(values, dtype=np.float64).ravel()
+    weights = np.asarray(weights, dtype=np.float64).ravel()
+    if values.shape != weights.shape or len(values) == 0:
+        raise ValueError(f"expected values and weights of one non-empty shape [N], got "
+                         f"{values.shape} and {weights.shape}")
+    if not (np.isfinite(weights).all() and (weights >= 0).all() and weights.sum() > 0):
+        raise ValueError("weights must be finite, >= 0 and not all 0")
+    order = np.argsort(values, kind="stable")
+    cumulative = np.cumsum(weights[order])
+    median = values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])]
+    return float(np.dot(weights, values) / weights.sum()), float(median)
 
 
 def depth_rmse(pred_depth: Tensor, gt_depth: Tensor, tissue: Tensor) -> float:

@@ -29,7 +29,7 @@ from surgsplat.data.layout import frame_stem
 from surgsplat.data.phantom.generate import HIGHLIGHTS_DIR, TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
 from surgsplat.data.scene import Camera, Frame, read_image, read_npy, read_tool_mask
 from surgsplat.eval.geometry_metrics import (depth_rmse, geometry_metrics, point_to_surface,
-                                             sample_surface)
+                                             sample_surface, weighted_mean_median)
 from surgsplat.eval.decomposition import (CONVENTIONS as DECOMPOSITION_CONVENTIONS,
                                          DecompositionScores)
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
@@ -112,10 +112,13 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
             row.update(frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
                                       gt_vertices, gt_faces, seed=frame.index))
             row.update(mesh_geometry(meshes.frame_mesh(frame), frame, gt_vertices, gt_faces))
-            means = run.model.state_at(FrameTime(frame.index, frame.time)).means.detach()
+            state = run.model.state_at(FrameTime(frame.index, frame.time))
+            means, opacities = state.means.detach(), state.opacities.detach()
             tissue = tissue_members(run.model.gaussians.params)
-            row.update(gaussian_geometry(means if tissue is None else means[tissue], frame,
-                                         gt_vertices, gt_faces, seed=frame.index))
+            if tissue is not None:
+                means, opacities = means[tissue], opacities[tissue]
+            row.update(gaussian_geometry(means, opacities, frame, gt_vertices, gt_faces,
+                                         seed=frame.index))
         gt_normals = normals_path(scene.root, frame.index)
         if options.geometry and gt_normals.is_file():
             normals, valid, normal_source = surface_normals(out, frame.camera.K)
@@ -176,7 +179,11 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         "gaussians_p2s": "distance of every deformed Gaussian centre that projects inside the "
                          "frame's field of view to the gt tissue mesh (Endo-GSG's P2S of the "
                          "Gaussian point cloud), whatever its opacity; tissue Gaussians only "
-                         "when a tool field marks some as tool",
+                         "when a tool field marks some as tool; gaussians_p2s_weighted_mean_mm "
+                         "and _median_mm: the same distances weighted by each Gaussian's "
+                         "rendered opacity at the test frame (after every component, e.g. the "
+                         "SDF's bell), so a faded floater counts little; the median is the lower "
+                         "weighted median",
         "articulation": "hinge_axis_error_deg (orientation-free, mean), hinge_offset_mm, "
                         "jaw_angle_rmse_deg (axis sign and jaw order aligned to the truth), "
                         "jaw_opening_rmse_deg: RUN/articulation.json vs gt/tool_kinematics.json "
@@ -275,23 +282,31 @@ def mesh_geometry(mesh: FrameMesh, frame: Frame, gt_vertices: np.ndarray,
     return row
 
 
-def gaussian_geometry(means: torch.Tensor, frame: Frame, gt_vertices: np.ndarray,
-                      gt_faces: np.ndarray, seed: int) -> dict[str, float]:
-    """gaussians_p2s_* of the deformed centres [N, 3] seen inside `frame`'s field of view."""
+def gaussian_geometry(means: torch.Tensor, opacities: torch.Tensor, frame: Frame,
+                      gt_vertices: np.ndarray, gt_faces: np.ndarray,
+                      seed: int) -> dict[str, float]:
+    """gaussians_p2s_* of the deformed centres [N, 3] seen inside `frame`'s field of view, plain
+    and weighted by their rendered opacities [N] (see the conventions)."""
     camera = frame.camera
     pixel, z = project_points(means, camera.K, camera.world_to_camera)
     seen = inside_image(pixel, z, camera.width, camera.height)
     seen[seen.clone()] = frame.fov[pixel[seen, 1], pixel[seen, 0]]
     if not seen.any():
         return {}
-    distance = point_to_surface(_subsample(means[seen].numpy(), seed), gt_vertices, gt_faces)
-    return {"gaussians_p2s_mean_mm": float(distance.mean()),
-            "gaussians_p2s_median_mm": float(np.median(distance)),
-            "gaussians_p2s_p95_mm": float(np.percentile(distance, 95))}
+    rows = _subsample(seen.nonzero()[:, 0].numpy(), seed)
+    distance = point_to_surface(means[rows].numpy(), gt_vertices, gt_faces)
+    row = {"gaussians_p2s_mean_mm": float(distance.mean()),
+           "gaussians_p2s_median_mm": float(np.median(distance)),
+           "gaussians_p2s_p95_mm": float(np.percentile(distance, 95))}
+    weights = opacities[rows].numpy()
+    if weights.sum() > 0:
+        mean, median = weighted_mean_median(distance, weights)
+        row.update(gaussians_p2s_weighted_mean_mm=mean, gaussians_p2s_weighted_median_mm=median)
+    return row
 
 
 def _subsample(points: np.ndarray, seed: int) -> np.ndarray:
-    """At most GEOMETRY_POINTS of points [N, 3], a seeded random choice."""
+    """At most GEOMETRY_POINTS rows of points [N, ...], a seeded random choice."""
     if len(points) <= GEOMETRY_POINTS:
         return points
     keep = np.random.default_rng(seed).choice(len(points), GEOMETRY_POINTS, replace=False)

@@ -1,14 +1,16 @@
 """Per-frame tissue meshes of a trained run, in the scene's unit and world frame.
 
 Two routes, chosen by the method:
-- a method with a signed distance field (a component offering `signed_distance`, such as
-  Endo-GSG's `SDFField`): marching cubes (scikit-image) of the canonical SDF once, each vertex
-  then moved along its normal onto the canonical tissue Gaussians near it (`fit_to_points`: the
-  SDF's zero level follows the Gaussians on average but is bumpy between them), the vertices
-  carried to the frame's time by the Gaussians' own motion (each vertex moves with the
-  inverse-distance-weighted displacement of its nearest canonical Gaussians, which works for any
-  deformation component), then cropped to what the frame's camera sees: faces inside the image and
-  the field of view, on the rendered surface (within `surface_tolerance` of the rendered depth,
+- a method with a signed distance field (a component offering `signed_distance`, `box` and
+  `centres`, the canonical centres where it meets the Gaussians, such as Endo-GSG's `SDFField`):
+  marching cubes (scikit-image) of the canonical SDF once (with `fit_radius` > 0, each vertex
+  then moved along its normal onto the canonical tissue Gaussians near it, `fit_to_points`; off
+  by default: the mesh is the SDF's own surface), the vertices carried to the frame's time by
+  the Gaussians' own motion (each vertex moves with the inverse-distance-weighted displacement
+  of its nearest Gaussians from their canonical centres, which works for any deformation
+  component and leaves out what is no motion, such as the anchor clip of mesh-anchored
+  Gaussians), then cropped to what the frame's camera sees: faces inside the image and the
+  field of view, on the rendered surface (within `surface_tolerance` of the rendered depth,
   where the render is opaque);
 - any other method: the rendered depth map triangulated (every `stride`-th pixel, two triangles per
   grid square), keeping pixels inside the field of view where the render is opaque, and culling
@@ -53,10 +55,11 @@ class MeshOptions:
     the rendered depth."""
     neighbours: int = 8
     """SDF route: canonical Gaussians whose displacement carries each vertex."""
-    fit_radius: float = 3.0
+    fit_radius: float = 0.0
     """SDF route: each canonical vertex moves along its normal to the weighted mean normal
     offset of the canonical tissue Gaussians within this many marching-cubes cells (weights:
-    rendered opacity times a Gaussian kernel of the distance); 0 keeps the SDF's zero level."""
+    rendered opacity times a Gaussian kernel of the distance); 0 (default) keeps the SDF's zero
+    level, which, with the centres pulled onto it, lies nearer the tissue than the fit."""
     stride: int = 2
     """Depth route: pixels between grid vertices."""
     edge_factor: float = 4.0
@@ -139,11 +142,17 @@ class MeshExtractor:
             opacity = opacity * factor
         tissue = tissue_members(params)
         keep = slice(None) if tissue is None else tissue
-        return params["means"].detach()[keep].numpy(), opacity[keep].numpy()
+        return self._canonical_centres()[keep].numpy(), opacity[keep].numpy()
+
+    def _canonical_centres(self) -> Tensor:
+        """[N, 3] the canonical centres the SDF meets (`SDFField.centres`: anchored ones for
+        mesh-anchored Gaussians), from which the deformation's displacement is measured."""
+        return self.field.centres(self.model.gaussians).detach()
 
     def _carry(self, vertices: np.ndarray, when: FrameTime) -> np.ndarray:
-        """Canonical vertices [V, 3] -> their positions at `when`."""
-        canonical = self.model.gaussians.params["means"].detach()
+        """Canonical vertices [V, 3] -> their positions at `when`: each moved by the weighted
+        displacement of its nearest Gaussians from their canonical centres."""
+        canonical = self._canonical_centres()
         if self._weights is None:
             self._weights = anchor_weights(vertices, canonical.numpy(), self.options.neighbours)
         moved = self.model.state_at(when).means.detach()

@@ -21,10 +21,16 @@ The coupling, as the component contract expresses it:
   s = sigmoid(beta f(mu)) (Eq. 4; beta learnable), also given to densification as
   `opacity_factor`, so pruning, cloning and resets act on the rendered opacity;
 - losses on a random subset of tissue Gaussians per step: "eikonal" (Eq. 13), "projection"
-  (Eq. 7-8), "orientation" (Eq. 9-10: the shortest axis along the SDF normal) and "sda" (Eq. 6: the
+  (Eq. 7-8: the centres pulled toward their detached projections on the zero level; the L1
+  length over `unit()`, so that its weight does not depend on the scene's unit),
+  "orientation" (Eq. 9-10: the shortest axis along the SDF normal) and "sda" (Eq. 6: the
   normalised SDF vector against the normalised signed depth differences of the deformed centres
   to the frame's measured depth). The depth loss of Eq. 5 is the method's depth component, whose
   rendered depth the SDF opacity shapes.
+
+Where the field meets the Gaussians: at their canonical centres, or, when another component of
+the method places the canonical Gaussians (`canonical_means`, e.g. DRAWER's mesh anchors), at the
+centres it gives them, where they are rendered (`centres`).
 
 Sign convention: f > 0 in front of the surface (the camera side, free space), f < 0 behind it.
 `setup` fits the field to the initial point cloud along the first camera's rays before training.
@@ -33,6 +39,7 @@ Sign convention: f > 0 in front of the surface (the camera side, free space), f 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import torch
@@ -67,6 +74,9 @@ class SDFConfig(ComponentConfig, kind="sdf"):
     """Adam learning rate of the feature grids."""
     mlp_lr: float = 1e-3
     """Adam learning rate of the MLP."""
+    lr_decay: float = 0.01
+    """Final over initial learning rate of the grids and the MLP (exponential decay over the run,
+    as the Gaussians' means decay), so that the zero level settles with the centres."""
     beta_lr: float = 1e-2
     """Adam learning rate of log(beta); 0 keeps beta fixed at its initial value."""
     bell_width: float = 0.02
@@ -95,6 +105,8 @@ class SDFField(Component):
         super().__init__()
         if not config.resolutions or min(config.resolutions) < 2:
             raise SurgsplatError("sdf needs at least one grid resolution, each >= 2")
+        if not 0 < config.lr_decay <= 1:
+            raise SurgsplatError(f"sdf lr_decay must be in (0, 1], got {config.lr_decay}")
         self.config = config
         self.grids = nn.ParameterList(
             nn.Parameter(torch.randn(1, config.feature_dim, r, r, r) * 1e-2)
@@ -107,6 +119,20 @@ class SDFField(Component):
         self.log_beta = nn.Parameter(torch.zeros(()))
         self.register_buffer("box", torch.tensor([[-1.0] * 3, [1.0] * 3]))
         self.register_buffer("initial_beta", torch.ones(()))  # 1 / scene units, set by setup
+        self._others: list[Component] = []  # the method's other components, in order
+
+    def bind(self, components: Mapping[str, Component]) -> None:
+        self._others = [component for component in components.values() if component is not self]
+
+    def centres(self, gaussians: GaussianModel) -> Tensor:
+        """[N, 3] canonical centres at which the field meets the Gaussians (scene units): where
+        the first component that places the canonical Gaussians puts them (`canonical_means`,
+        differentiable in params["means"]), else params["means"]."""
+        for component in self._others:
+            placed = component.canonical_means(gaussians)
+            if placed is not None:
+                return placed
+        return gaussians.params["means"]
 
     # ---- the field ----
     def unit(self) -> Tensor:
@@ -178,16 +204,19 @@ class SDFField(Component):
             optimizer.step()
 
     def param_groups(self) -> list[ParamGroup]:
-        groups = [ParamGroup("sdf_grid", list(self.grids), self.config.grid_lr),
-                  ParamGroup("sdf_mlp", list(self.mlp.parameters()), self.config.mlp_lr)]
+        config = self.config
+        groups = [ParamGroup("sdf_grid", list(self.grids), config.grid_lr,
+                             config.grid_lr * config.lr_decay),
+                  ParamGroup("sdf_mlp", list(self.mlp.parameters()), config.mlp_lr,
+                             config.mlp_lr * config.lr_decay)]
         if self.config.beta_lr > 0:
             groups.append(ParamGroup("sdf_beta", [self.log_beta], self.config.beta_lr))
         return groups
 
     def tissue_bell(self, gaussians: GaussianModel) -> Tensor:
-        """[N] the bell of f at the canonical centres; 1 for Gaussians that a tool field of the
-        method models as tool (the field describes the tissue surface)."""
-        factor = self.bell(self.signed_distance(gaussians.params["means"]))
+        """[N] the bell of f at the canonical centres (`centres`); 1 for Gaussians that a tool
+        field of the method models as tool (the field describes the tissue surface)."""
+        factor = self.bell(self.signed_distance(self.centres(gaussians)))
         tissue = tissue_members(gaussians.params)
         return factor if tissue is None else torch.where(tissue, factor, 1.0)
 
@@ -209,14 +238,14 @@ class SDFField(Component):
         rows = (torch.arange(params["means"].shape[0]) if tissue is None
                 else tissue.nonzero()[:, 0])
         pick = rows[torch.randperm(rows.numel())[:self.config.samples_per_step]]
-        means = params["means"][pick]  # [K, 3] canonical
+        means = self.centres(context.gaussians)[pick]  # [K, 3] canonical
         value, gradient = self.value_and_gradient(means)
         normal = nn.functional.normalize(gradient, dim=1).detach()  # [K, 3]
         terms: dict[str, Tensor] = {}
         if "eikonal" in active:
             terms["eikonal"] = eikonal_loss(gradient)
         if "projection" in active:
-            terms["projection"] = projection_loss(means, value, normal)
+            terms["projection"] = projection_loss(means, value, normal) / self.unit()
         if "orientation" in active:
             terms["orientation"] = orientation_loss(params["quats"][pick],
                                                     params["log_scales"][pick], normal)
@@ -260,10 +289,14 @@ def eikonal_loss(gradient: Tensor) -> Tensor:
 
 def projection_loss(means: Tensor, value: Tensor, normal: Tensor) -> Tensor:
     """Mean L1 distance between centres [K, 3] and their first-order projections onto the zero
-    level set x - f(x) n (Eq. 7-8; n [K, 3] the unit SDF normal). With f > 0 in front, the
-    projection steps against the normal; |x_proj - x|_1 = |f| |n|_1 either way."""
-    projected = means - value[:, None] * normal
-    return (projected - means).abs().sum(dim=1).mean()
+    level set x_proj = x - f(x) n (Eq. 7-8; value [K] = f(x) in scene units, n [K, 3] the unit
+    SDF normal; with f > 0 in front, the projection steps against the normal). The projection is
+    a fixed target (detached), so the loss pulls the centres onto the surface and leaves the field
+    alone: its gradient in the means is sign(f n) / K, and none reaches f or n (the field learns
+    its surface from the depth, SDA and Eikonal terms; were f differentiated here, the cheapest
+    descent would move the surface onto the centres, floaters included)."""
+    target = (means - value[:, None] * normal).detach()
+    return (means - target).abs().sum(dim=1).mean()
 
 
 def orientation_loss(quats: Tensor, log_scales: Tensor, normal: Tensor) -> Tensor:

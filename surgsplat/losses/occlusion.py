@@ -3,8 +3,14 @@ tools hide most often.
 
 With M_j the tool mask of training frame j (1 = tool), the occlusion frequency is
 S = sum_j M_j / ||sum_j M_j||_F (Frobenius norm over the image), and the importance map of frame
-i is V_i = (1 - M_i) (1 + gamma S): 0 on the frame's own tool pixels, 1 on tissue that is never
-hidden, more where tools pass often. Pixels outside the field of view get weight 0 too.
+i is V_i = (1 - M_i) (1 + gamma S): 0 on the frame's own tool pixels, more where tools pass often.
+Pixels outside the field of view get weight 0 too.
+
+The losses of Eq. 12 average their weighted errors over the tissue pixels, so V_i as written would
+also scale the whole loss by mean(V_i) > 1, by a different factor in every frame (the paper's
+weights lambda_1, lambda_2 were tuned with V_i in the loss, on its data). `weights` therefore
+returns V_i divided by its mean over the frame's tissue pixels: the map only re-weights pixels
+within a frame, so the losses' weights mean the same with and without it, for any gamma.
 """
 
 from __future__ import annotations
@@ -39,7 +45,10 @@ class OcclusionImportance:
         self.frequency = occlusion_frequency([frame.tool for frame in frames])
 
     def weights(self, frame: Frame) -> Tensor:
-        """V_i [H, W] float of `frame`: 0 off tissue, 1 + gamma S on tissue (Eq. 11)."""
+        """[H, W] float of `frame`: V_i (Eq. 11), 0 off tissue and 1 + gamma S on tissue, divided
+        by its mean over the tissue pixels (so that mean is 1; all zeros without tissue)."""
         if self.frequency is None:
             raise RuntimeError("OcclusionImportance.observe must see the training frames first")
-        return frame.tissue.float() * (1.0 + self.gamma * self.frequency)
+        importance = frame.tissue.float() * (1.0 + self.gamma * self.frequency)
+        mean = importance.sum() / frame.tissue.sum().clamp_min(1)
+        return importance / mean.clamp_min(1e-12)

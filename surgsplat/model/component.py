@@ -21,7 +21,8 @@ same way and never name one. A component declares:
 - diagnostics of the Gaussians at a test frame for metrics.json (`frame_diagnostics`, e.g. tool
   collisions or strain);
 - the other components of its method, when it builds on one of them (`bind`, e.g. Gaussians
-  anchored on the mesh of the method's signed distance field);
+  anchored on the mesh of the method's signed distance field), and where it puts the canonical
+  Gaussians when it places them itself (`canonical_means`, e.g. on the faces of that mesh);
 - work between training steps (`after_step`, e.g. re-extracting a mesh every K iterations), after
   the optimiser step and densification, when every Gaussian of the next step exists;
 - what densification must know of it: a factor on every Gaussian's opacity that does not depend
@@ -222,6 +223,13 @@ class Component(nn.Module):
         """[N] factor in (0, 1] by which this component's `transform` multiplies every canonical
         Gaussian's opacity at all times, or None. Densification prunes, clones and resets the
         product sigmoid(opacity_logits) * factor, the opacity that is rendered."""
+        return None
+
+    def canonical_means(self, gaussians: GaussianModel) -> Tensor | None:
+        """[N, 3] where this component puts the canonical Gaussians before any deformation
+        (e.g. DRAWER's anchors on mesh faces), differentiable in params["means"], or None when
+        it leaves them at params["means"]. Components that meet the Gaussians in canonical space
+        (a signed distance field, the mesh export) ask the method's components in order."""
         return None
 
     def densify_weights(self, context: RenderContext) -> Tensor | None:

@@ -22,13 +22,15 @@ where r_k is the face's inradius, at least `min_face_radius` marching-cubes cell
 marching cubes would otherwise pin their Gaussians to zero size). Every clip is straight-through:
 the forward pass uses the clipped value, the backward pass the identity (sg(clip(p)) + p - sg(p)),
 so the photometric gradient keeps moving the parameters, whose drift off the surface the SDF's
-projection loss pulls back, and the surface along with them.
+projection loss pulls back.
 
 How the Gaussians follow the deforming surface: this component comes first in the method, so it
 turns the canonical Gaussians into anchored canonical Gaussians; the deformation field then moves
 the anchored centres (evaluated there, `fields.deformation`), so over time each Gaussian moves with
 the tissue around its face. The mesh itself is canonical; the mesh export carries its vertices to
-a frame by the displacement of the nearby Gaussians (`export.mesh`), i.e. by the same field.
+a frame by the displacement of the nearby Gaussians from their anchored canonical centres
+(`canonical_means`; `export.mesh`), i.e. by the same field. The method's SDF evaluates its bell
+and its losses at those anchored centres too, where the Gaussians are rendered.
 
 Gaussians that a tool field marks as tool (`model.physics.tissue_members`) are left as they are.
 """
@@ -238,6 +240,36 @@ class MeshAnchor(Component):
         """[N] r_k of the clips: the inradius, at least min_face_radius cells."""
         return inradius(corners).clamp_min(self.config.min_face_radius * float(self.cell))
 
+    def _ensure_anchored(self, gaussians: GaussianModel) -> None:
+        """Extract the mesh if there is none yet and anchor the Gaussians without a face."""
+        if self.faces.shape[0] == 0:
+            self.extract()
+        missing = self.unanchored(gaussians)
+        if missing.numel():
+            self.anchor(gaussians, missing)
+
+    def _clipped_means(self, means: Tensor, corners: Tensor, radius: Tensor) -> Tensor:
+        """Centres [N, 3] clipped into their faces corners [N, 3, 3] and normal bands of
+        offset_band face radii radius [N] (forward value only; see `straight_through`)."""
+        local = clip_to_face(to_face_local(means, corners), corners,
+                             self.config.offset_band * radius)
+        return from_face_local(local, corners)
+
+    def canonical_means(self, gaussians: GaussianModel) -> Tensor:
+        """[N, 3] the anchored canonical centres (tool Gaussians' as they are), straight-through
+        to params["means"]: where this component puts the canonical Gaussians before any
+        deformation. The method's SDF is evaluated there, and the mesh export measures the
+        deformation's displacement from there (not from the raw means, whose clip offset is no
+        motion)."""
+        self._ensure_anchored(gaussians)
+        means = gaussians.params["means"]
+        corners = self.face_corners(gaussians)
+        clipped = self._clipped_means(means, corners, self.face_radius(corners))
+        tissue = tissue_members(gaussians.params)
+        if tissue is not None:
+            clipped = torch.where(tissue[:, None], clipped, means)
+        return straight_through(clipped, means)
+
     # ---- the component contract ----
     def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
         return {ANCHOR_KEY: torch.full((context.points.shape[0],), -1.0)}
@@ -254,17 +286,11 @@ class MeshAnchor(Component):
                   when: FrameTime) -> GaussianState:
         """The anchored canonical Gaussians (see the module docstring); tool Gaussians as they
         are."""
-        if self.faces.shape[0] == 0:
-            self.extract()
-        missing = self.unanchored(gaussians)
-        if missing.numel():
-            self.anchor(gaussians, missing)
+        self._ensure_anchored(gaussians)
         config = self.config
         corners = self.face_corners(gaussians)  # [N, 3, 3]
         radius = self.face_radius(corners)  # [N]
-        local = clip_to_face(to_face_local(state.means, corners), corners,
-                             config.offset_band * radius)
-        means = from_face_local(local, corners)
+        means = self._clipped_means(state.means, corners, radius)
         in_face, normal = config.scale_limit, config.scale_limit * config.normal_scale_ratio
         limits = radius[:, None] * torch.tensor([in_face, in_face, normal])  # [N, 3]
         scales = torch.minimum(state.scales, limits)

@@ -8,9 +8,12 @@ import pytest
 import torch
 
 from surgsplat.image.pinhole import backproject
+from surgsplat.data.ply import read_ply_mesh
+from surgsplat.data.scene import load_scene
 from surgsplat.eval.geometry_metrics import (chamfer_mm, depth_rmse, geometry_metrics,
                                              point_to_surface, point_triangle_distance,
-                                             sample_surface)
+                                             sample_surface, weighted_mean_median)
+from surgsplat.eval.run_metrics import gaussian_geometry, mesh_path
 
 
 def grid_mesh(nx=21, ny=16, size=(20.0, 15.0), jitter=0.0, height=None, seed=0):
@@ -234,3 +237,38 @@ def test_normal_angles_are_orientation_free_and_masked():
     angles = normal_angle_deg(pred, gt, mask)
     assert angles.shape == (15,)
     assert torch.allclose(angles, torch.full((15,), 10.0, dtype=torch.float64), atol=1e-4)
+
+
+def test_weighted_mean_and_lower_weighted_median():
+    values = np.array([4.0, 1.0, 3.0, 2.0])
+    assert weighted_mean_median(values, np.ones(4)) == pytest.approx((2.5, 2.0), abs=1e-12)
+    # the weight of 4.0 outweighs the rest: mean (4 * 7 + 1 + 3 + 2) / 10, median 4
+    assert weighted_mean_median(values, [7.0, 1.0, 1.0, 1.0]) == pytest.approx((3.4, 4.0),
+                                                                              abs=1e-12)
+    # a zero weight removes a value
+    assert weighted_mean_median(values, [0.0, 1.0, 1.0, 1.0]) == pytest.approx((2.0, 2.0),
+                                                                              abs=1e-12)
+    for weights in ([0.0] * 4, [1.0, -1.0, 1.0, 1.0], [1.0] * 3):
+        with pytest.raises(ValueError):
+            weighted_mean_median(values, weights)
+
+
+def test_opacity_weighted_gaussian_p2s_discounts_faded_floaters(small_phantom):
+    """Centres on the gt mesh (opacity 1) and twice as many 5 mm floaters toward the camera
+    (opacity 1e-3): the plain median is the floaters' 5 mm, the weighted median 0 and the weighted
+    mean about 5 mm x 2e-3 / (1 + 2e-3) (tolerances: 1e-3 mm for the median, whose vertices are at
+0; 2e-3 mm for the mean, as a floater may lie nearer than 5 mm where the surface curves)."""
+    scene = load_scene(small_phantom)
+    frame = scene.test_frames[0]
+    vertices, faces = read_ply_mesh(mesh_path(scene.root, frame.index))
+    surface = torch.from_numpy(vertices).float()
+    toward_camera = torch.nn.functional.normalize(
+        frame.camera.camera_to_world[:3, 3] - surface, dim=1)
+    floaters = surface + 5.0 * toward_camera
+    means = torch.cat([surface, floaters, floaters])
+    opacities = torch.cat([torch.ones(len(surface)), torch.full((2 * len(surface),), 1e-3)])
+    row = gaussian_geometry(means, opacities, frame, vertices, faces, seed=0)
+    assert row["gaussians_p2s_median_mm"] > 4.0
+    assert row["gaussians_p2s_weighted_median_mm"] == pytest.approx(0.0, abs=1e-3)
+    assert row["gaussians_p2s_weighted_mean_mm"] == pytest.approx(5.0 * 2e-3 / (1 + 2e-3),
+                                                                 abs=2e-3)

@@ -40,6 +40,30 @@ def test_projection_loss_is_the_l1_length_of_the_projection_step():
     assert float(projection_loss(means, torch.zeros(1), normal)) == 0.0
 
 
+def test_projection_loss_pulls_the_centres_and_leaves_the_field_alone():
+    """Eq. 8 with a detached projection target: the gradient reaches the means (sign(f n) / K per
+    coordinate, exact) and no parameter of the field."""
+    field = SDFField(SDFConfig(resolutions=(4, 8)))
+    means = torch.tensor([[0.3, -0.2, 0.1], [-0.5, 0.4, 0.2]], requires_grad=True)
+    value, gradient = field.value_and_gradient(means)
+    normal = torch.nn.functional.normalize(gradient, dim=1)
+    projection_loss(means, value, normal).backward()
+    expected = torch.sign(value[:, None] * normal).detach() / 2
+    torch.testing.assert_close(means.grad, expected, atol=0, rtol=0)
+    assert all(p.grad is None for p in field.parameters())
+    # on a sphere of radius 2, a step of 1e-2 against the gradient brings centres outside and
+    # inside it 1e-2 |n|_1 closer (to within 1e-4)
+    centres = torch.tensor([[0.0, 0.0, 3.0], [0.6, 0.8, 0.0], [1.0, 1.0, 1.0]],
+                           dtype=torch.float64, requires_grad=True)
+    value, gradient = tetrahedral_gradient(sphere, centres, 1e-6)
+    normal = torch.nn.functional.normalize(gradient, dim=1)
+    projection_loss(centres, value, normal).backward()
+    with torch.no_grad():
+        moved = sphere(centres - 1e-2 * torch.sign(centres.grad))
+        closer = value.abs() - moved.abs()
+    torch.testing.assert_close(closer, 1e-2 * normal.abs().sum(dim=1), atol=1e-4, rtol=0)
+
+
 def test_orientation_loss_is_zero_when_the_shortest_axis_is_the_normal():
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2)
     log_scales = torch.log(torch.tensor([[1.0, 1.0, 0.1], [0.1, 1.0, 1.0]]))
@@ -57,9 +81,10 @@ def test_sda_loss_compares_directions_not_scales():
     assert float(sda_loss(torch.zeros(0), torch.zeros(0))) == 0.0
 
 
-@pytest.mark.parametrize("name", ["eikonal", "projection", "orientation", "sda"])
+@pytest.mark.parametrize("name", ["eikonal", "orientation", "sda"])
 def test_loss_gradients_match_finite_differences(name):
-    """torch.autograd.gradcheck in float64 (its default tolerances: eps 1e-6, atol 1e-5)."""
+    """torch.autograd.gradcheck in float64 (its default tolerances: eps 1e-6, atol 1e-5). Not
+    the projection loss: its detached target makes it constant in the means numerically."""
     generator = torch.Generator().manual_seed(3)
 
     def rand(*shape):
@@ -68,7 +93,6 @@ def test_loss_gradients_match_finite_differences(name):
     normal = torch.nn.functional.normalize(torch.randn(5, 3, dtype=torch.float64), dim=1)
     cases = {
         "eikonal": (eikonal_loss, (rand(5, 3),)),
-        "projection": (lambda m, v: projection_loss(m, v, normal), (rand(5, 3), rand(5))),
         # distinct scales so that the shortest axis does not switch inside the perturbation
         "orientation": (lambda q: orientation_loss(
             q, torch.log(torch.tensor([[0.3, 1.0, 2.0]] * 5, dtype=torch.float64)), normal),

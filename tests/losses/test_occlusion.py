@@ -35,8 +35,10 @@ def test_importance_is_zero_on_the_frames_tool_and_grows_with_how_often_tissue_i
     importance.observe(frames)
     weights = importance.weights(frames[1])  # frame 1: only (0, 0) is tool
     assert float(weights[0, 0]) == 0.0
-    assert float(weights[0, 1]) == pytest.approx(1 + 10 / 10 ** 0.5)
-    assert float(weights[3, 3]) == 1.0
+    # V on tissue: 1 + 10 / sqrt(10) at (0, 1), 1 on the 14 others; normalised by their mean
+    mean = (1 + 10 / 10 ** 0.5 + 14) / 15
+    assert float(weights[0, 1]) == pytest.approx((1 + 10 / 10 ** 0.5) / mean, rel=1e-6)
+    assert float(weights[3, 3]) == pytest.approx(1 / mean, rel=1e-6)
     with pytest.raises(ValueError):
         OcclusionImportance(gamma=-1.0)
 
@@ -49,5 +51,24 @@ def test_weighted_losses_multiply_each_pixels_error():
     assert float(masked_l1(pred, gt, mask, weights)) == pytest.approx(3 * 3 / (4 * 3))
     depth, truth = torch.full((2, 2), 5.0), torch.full((2, 2), 5.0)
     depth[0, 1] = 7.0
-    assert float(depth_l1(depth, truth, mask, weights)) == pytest.approx(3 * 2 / 4)
-    assert float(depth_l1(depth, truth, mask)) == pytest.approx(2 / 4)
+    # depth L1 is relative: divided by the median measured depth, 5
+    assert float(depth_l1(depth, truth, mask, weights)) == pytest.approx(3 * 2 / 4 / 5)
+    assert float(depth_l1(depth, truth, mask)) == pytest.approx(2 / 4 / 5)
+
+
+@pytest.mark.parametrize("gamma", [0.0, 10.0, 1000.0])
+def test_importance_re_weights_tissue_pixels_without_rescaling_the_loss(gamma):
+    """Mean of the map over each frame's tissue pixels is 1 (tolerance 1e-6), so a uniform error
+    gives the same weighted loss as the unweighted one, whatever gamma."""
+    frames = frames_with_tools()
+    importance = OcclusionImportance(gamma=gamma)
+    importance.observe(frames)
+    for frame in frames:
+        weights = importance.weights(frame)
+        assert float(weights[frame.tissue].mean()) == pytest.approx(1.0, abs=1e-6)
+        pred, gt = torch.full((4, 4, 3), 0.5), torch.zeros(4, 4, 3)
+        assert float(masked_l1(pred, gt, frame.tissue, weights)) == pytest.approx(
+            float(masked_l1(pred, gt, frame.tissue)), abs=1e-6)
+    no_tissue = SimpleNamespace(tool=torch.ones(4, 4, dtype=torch.bool),
+                                tissue=torch.zeros(4, 4, dtype=torch.bool))
+    assert torch.equal(importance.weights(no_tissue), torch.zeros(4, 4))

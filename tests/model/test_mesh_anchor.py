@@ -6,13 +6,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import pytest
 import torch
 from torch import Tensor, nn
 
 from surgsplat.data.scene import load_scene
+from surgsplat.export.mesh import MeshExtractor, MeshOptions
+from surgsplat.fields.sdf import SDFConfig, SDFField
 from surgsplat.methods.registry import method_config
 from surgsplat.model.component import Component, ComponentConfig, FrameTime
+from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.mesh_anchor import (ANCHOR_KEY, MeshAnchor, MeshAnchorConfig, clip_tilt,
                                          clip_to_face, face_frames, from_face_local, inradius,
@@ -191,6 +195,33 @@ def test_reanchoring_after_densification_keeps_every_gaussian_on_a_valid_face():
     assert float((radius - 0.8).abs().max()) < 0.02  # the new mesh (cells of 0.125)
     state = anchor.transform(state_of(gaussians), gaussians, FrameTime(0, 0.0))
     within_band(anchor, gaussians, state, 1e-5)
+
+
+class BallField(SDFField):
+    """Endo-GSG's SDF component with the analytic field of a unit sphere."""
+
+    def signed_distance(self, points: Tensor) -> Tensor:
+        return points.norm(dim=1) - 1.0
+
+
+def test_the_sdf_and_the_mesh_export_use_the_anchored_centres():
+    """Without deformation nothing moves: the exported mesh at any time is the canonical one (no
+    anchor clip offset added; tolerance 1e-6), and the SDF's bell and losses are taken at the
+    anchored centres, where the Gaussians are rendered, not at the raw means."""
+    field = BallField(SDFConfig(resolutions=(2,)))
+    field.box.copy_(torch.tensor([[-1.5] * 3, [1.5] * 3]))
+    anchor, gaussians = anchored_model(400, Ball(1.0), MeshAnchorConfig(resolution=24))
+    model = SplatModel(gaussians, {"anchor": anchor, "sdf": field})
+    when = FrameTime(3, 0.5)
+    rendered = model.state_at(when).means.detach()
+    raw = gaussians.params["means"].detach()
+    assert float((rendered - raw).norm(dim=1).max()) > 0.05  # the clip acted
+    torch.testing.assert_close(field.centres(gaussians).detach(), rendered, atol=0, rtol=0)
+    torch.testing.assert_close(model.opacity_factor(), field.bell(field.signed_distance(rendered)),
+                               atol=1e-6, rtol=0)
+    extractor = MeshExtractor(model, MeshOptions(resolution=24, fit_radius=0.0))
+    vertices, _, _ = extractor.canonical_mesh()
+    np.testing.assert_allclose(extractor._carry(vertices, when), vertices, atol=1e-6, rtol=0)
 
 
 def test_a_run_saves_and_restores_the_mesh_of_its_anchors():
