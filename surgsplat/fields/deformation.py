@@ -136,10 +136,11 @@ class DeformationField(Component, ABC):
         return terms
 
     def volume_loss(self, gaussians: GaussianModel, t: float) -> Tensor:
-        """Volume preservation (PhysioSplat Eq. 6): the mean of (det J - 1)^2 over
-        `volume_samples()` random tissue Gaussians (every Gaussian when there is no semantic
-        logit), J = I + d(mean offset)/dx the deformation's spatial Jacobian at the canonical
-        mean, by central differences of step `volume_step()` (scene units)."""
+        """Volume preservation (PhysioSplat Eq. 6): the sum over tissue Gaussians (every
+        Gaussian when there is no semantic logit) of (det J - 1)^2, as the paper's weight is a
+        weight of a sum, estimated without bias by the mean over `volume_samples()` random
+        ones times their count; J = I + d(mean offset)/dx the deformation's spatial Jacobian at
+        the canonical mean, by central differences of step `volume_step()` (scene units)."""
         params = gaussians.params
         tissue = tissue_members(params)
         candidates = (torch.arange(gaussians.num_gaussians) if tissue is None
@@ -147,7 +148,8 @@ class DeformationField(Component, ABC):
         if candidates.numel() == 0:
             return params["means"].sum() * 0.0
         chosen = candidates[torch.randperm(candidates.numel())[:self.volume_samples()]]
-        return (self.jacobian_determinants(params, chosen, t) - 1.0).square().mean()
+        energy = (self.jacobian_determinants(params, chosen, t) - 1.0).square()
+        return energy.mean() * candidates.numel()
 
     def jacobian_determinants(self, params, rows: Tensor, t: float) -> Tensor:
         """[S] det(I + d(mean offset)/dx) of the Gaussians `rows` [S] at time t, by central

@@ -18,6 +18,11 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+PHANTOM_EXTENT_MM = 77.35
+"""Scene extent (largest distance of an initial point from their centroid) of the full pulling
+phantom, mm: the length by which the paper's millimetre values (its 2 mm margin) become
+fractions of the scene extent (2 mm = 0.0259 of it)."""
+
 SEMANTIC_KEY = "semantic_logit"
 """Per-Gaussian attribute holding the semantic logit s ([N]; sigmoid(s) = tissue probability)."""
 

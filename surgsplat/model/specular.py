@@ -5,10 +5,14 @@ sigmoid) and a roughness gamma > 0 (attribute `specular_log_roughness`); its dif
 the degree-0 SH term (the preset sets sh_degree 0). With the light at the camera, the half vector
 is the view direction v, and a Gaussian adds the white lobe beta exp((n . v - 1) / gamma^2).
 
-The normal n comes from the rendered depth (`image.pinhole.depth_normals`), so it exists per
-pixel, after rasterisation: the lobe is shaded per pixel (deferred) from the alpha-blended beta
-(`specular_albedo` channel: sum_i w_i beta_i, which carries the alpha_i of Eq. 7) and the
-blended sharpness 1 / gamma^2 (`specular_sharpness` channel, normalised by the pixel's alpha),
+The normal n comes from the rendered depth (as `image.pinhole.depth_normals`), so it exists per
+pixel, after rasterisation. One-pixel central differences of a raw rendered depth turn 0.05 mm of
+depth jitter into normals tilted by ~13 degrees on the phantom, which scatters a lobe as sharp as
+this one; the depth is therefore first smoothed by the 11x11 Gaussian window (sigma 1.5 px,
+`image.blur`), normalised by the blurred validity so that edges of valid depth are not pulled
+towards 0, which cuts white jitter's tilt about fivefold. The lobe is shaded per pixel
+(deferred) from the alpha-blended beta (`specular_albedo` channel: sum_i w_i beta_i, which
+carries the alpha_i of Eq. 7) and the blended sharpness 1 / gamma^2 (`specular_sharpness` channel, normalised by the pixel's alpha),
 and added to the rendered colour: C += beta_bar exp((n . v - 1) sharpness_bar). The depth normal
 is detached, so highlights never bend the geometry; pixels without a valid depth normal get no
 lobe. The lobe is white and not scaled by an exposure component.
@@ -22,7 +26,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from surgsplat.image.pinhole import depth_normals, pixel_rays
+from surgsplat.image.blur import gaussian_blur
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, SetupContext
 from surgsplat.render.render import MIN_ALPHA_FOR_DEPTH
 
@@ -34,8 +38,11 @@ ROUGHNESS_KEY = "specular_log_roughness"
 class SpecularConfig(ComponentConfig, kind="specular"):
     """Per-Gaussian co-located specular lobe."""
 
-    init_albedo: float = 0.1
-    """Initial beta of every Gaussian (the paper's 0.1)."""
+    init_albedo: float = 0.01
+    """Initial beta of every Gaussian, in (0, 1). The paper's 0.1 adds 0.1 of white to every
+    surface facing the camera at the start, on top of degree-0 colours initialised from images
+    that already contain the highlights (counted twice); 0.01 starts the lobe near zero and lets
+    the highlights move into it."""
     init_roughness: float = 0.2
     """Initial gamma: 0.2 gives sharpness 25, a lobe at 1/e where n . v = 0.96."""
     albedo_lr: float = 0.01
@@ -79,12 +86,50 @@ class SpecularLobe(Component):
 
 def specular_lobe(depth: Tensor, K: Tensor, albedo: Tensor, sharpness: Tensor) -> Tensor:
     """[H, W] co-located lobe albedo exp((n . v - 1) sharpness) with n the normal of the depth
-    map [H, W] (scene units) and v the unit direction from the surface to the camera; 0 where
-    the depth normal is not valid. Differentiable in albedo and sharpness [H, W], not depth."""
+    map [H, W] (scene units), smoothed (`smooth_depth`), and v the unit direction from the
+    surface to the camera (`view_cosine`); 0 where the depth normal is not valid.
+    Differentiable in albedo and sharpness [H, W], not depth."""
     with torch.no_grad():
-        normals, valid = depth_normals(depth, K)  # facing away from the camera
-        height, width = depth.shape
-        rays = torch.nn.functional.normalize(pixel_rays(K, width, height, depth.dtype), dim=-1)
-        cosine = (normals * rays).sum(-1).clamp(0.0, 1.0)  # n_out . v, n_out = -n, v = -ray
+        cosine, valid = view_cosine(smooth_depth(depth), K)
     lobe = albedo * torch.exp((cosine - 1.0) * sharpness)
     return torch.where(valid, lobe, torch.zeros_like(lobe))
+
+
+def view_cosine(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
+    """n . v for the normals n of `image.pinhole.depth_normals` (one-pixel central differences
+    of the depth map [H, W], scene units; K [3, 3]) and v the unit direction to the camera, in
+    closed form without [H, W, 3] points: with P = z r, r = ((x + 0.5 - cx) / fx,
+    (y + 0.5 - cy) / fy, 1), the cross product (P_right - P_left) x (P_down - P_up) is parallel
+    to m = (-fx dz_x zy, -fy dz_y zx, fx dz_x zy r_x + fy dz_y zx r_y + 2 zx zy), where dz_x,
+    dz_y are the depth differences and zx, zy the means of the two neighbours across x and y,
+    and m . r = 2 zx zy. Returns the cosine [H, W] in [0, 1] and valid [H, W] bool, as
+    `depth_normals` defines it (interior pixels whose own and four neighbours' depths are > 0,
+    with a non-degenerate normal)."""
+    height, width = depth.shape
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    rx = ((torch.arange(1, width - 1, dtype=depth.dtype) + 0.5 - cx) / fx)[None]  # [1, W-2]
+    ry = ((torch.arange(1, height - 1, dtype=depth.dtype) + 0.5 - cy) / fy)[:, None]  # [H-2, 1]
+    right, left = depth[1:-1, 2:], depth[1:-1, :-2]
+    down, up = depth[2:, 1:-1], depth[:-2, 1:-1]
+    dz_x, zx = right - left, 0.5 * (right + left)
+    dz_y, zy = down - up, 0.5 * (down + up)
+    mx, my = -fx * dz_x * zy, -fy * dz_y * zx
+    mz = -(mx * rx + my * ry) + 2.0 * zx * zy
+    length = (mx.square() + my.square() + mz.square()).sqrt()
+    ray = (rx.square() + ry.square() + 1.0).sqrt()
+    inner = (2.0 * zx * zy / (length * ray).clamp_min(1e-12)).clamp(0.0, 1.0)
+    positive = depth > 0
+    ok = (positive[1:-1, 2:] & positive[1:-1, :-2] & positive[2:, 1:-1] & positive[:-2, 1:-1]
+          & positive[1:-1, 1:-1] & (length > 1e-12))
+    cosine = torch.nn.functional.pad(inner, (1, 1, 1, 1))
+    valid = torch.nn.functional.pad(ok, (1, 1, 1, 1))
+    return cosine, valid
+
+
+def smooth_depth(depth: Tensor) -> Tensor:
+    """[H, W] depth (scene units, 0 = none) blurred by `image.blur.gaussian_blur` over its valid
+    (> 0) pixels only: blur(depth) / blur(valid), 0 where the depth was 0."""
+    valid = (depth > 0).to(depth.dtype)
+    blurred = gaussian_blur(torch.stack([depth * valid, valid]))
+    return torch.where(valid > 0, blurred[0] / blurred[1].clamp_min(1e-6),
+                       torch.zeros_like(depth))

@@ -43,7 +43,8 @@ from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, 
                                        InitialPoints, ParamGroup, RenderContext, SceneInfo,
                                        SetupContext)
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.model.physics import SEMANTIC_KEY, arap_strain, neighbour_graph, tool_hull
+from surgsplat.model.physics import (PHANTOM_EXTENT_MM, SEMANTIC_KEY, arap_strain,
+                                     neighbour_graph, tool_hull)
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
@@ -82,9 +83,9 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     """Point-to-point ICP iterations per frame when the initial poses are registered."""
     min_hull_opacity: float = 0.1
     """Tool Gaussians at least this opaque span the tool proxy (convex hull)."""
-    densify_margin: float = 2.0
-    """No densification where the tool proxy's signed distance is below this (scene units;
-    the paper's epsilon, 2 mm)."""
+    densify_margin: float = 2.0 / PHANTOM_EXTENT_MM
+    """No densification where the tool proxy's signed distance is below this fraction of the
+    scene extent, in [0, 1) (the paper's epsilon, 2 mm on the phantom: 0.0259)."""
     occlusion_sigma: float = 0.1
     """Colour difference (mean over RGB) at which an occluded Gaussian's weight is 1/e."""
     strain_neighbours: int = 16
@@ -114,6 +115,8 @@ class ToolField(Component):
         self.register_buffer("seen", torch.zeros(frames, dtype=torch.bool))
         self.register_buffer("last_tissue_image", torch.zeros(0, 0, 3), persistent=False)
         self._reference: tuple[Tensor, Tensor] | None = None  # canonical tool (means, colours)
+        self._gate = GradientGate()  # of the latest render's tool-probability channel
+        self._occlusion: tuple | None = None  # (render, occluded [N], pixels [N, 2]) of a step
 
     # ---- set-up ----
     def setup(self, context: SetupContext) -> None:
@@ -251,13 +254,24 @@ class ToolField(Component):
 
     # ---- semantic channel and its loss ----
     def render_channels(self, state, gaussians: GaussianModel, camera, when) -> dict[str, Tensor]:
-        return {TOOL_CHANNEL: 1.0 - torch.sigmoid(gaussians.params[SEMANTIC_KEY])}
+        probability = 1.0 - torch.sigmoid(gaussians.params[SEMANTIC_KEY])  # [N]
+        self._gate = GradientGate()
+        return {TOOL_CHANNEL: self._gate(probability)}
 
     def loss_names(self) -> tuple[str, ...]:
         return ("mask",)
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
+        """"mask": BCE of the rendered tool probability against the tool mask over the field
+        of view. Its gradient never reaches the semantic logit of a tissue Gaussian hidden behind
+        rendered tool (`_occluded`): per-Gaussian Adam moves a logit by about the learning rate
+        per step whatever the gradient's size, so the faint blend weight of hidden tissue under a
+        tool pixel would otherwise flip it to tool within ~2 init_logit / semantic_lr visits,
+        and the tool-free render would lose the hidden tissue (a dark tool-shaped hole)."""
         frame = context.frame
+        with torch.no_grad():
+            tool = ~(context.gaussians.params[SEMANTIC_KEY] >= 0.0)
+            self._gate.keep = ~self._occluded(context, tool)[0]
         probability = context.output.extras[TOOL_CHANNEL][..., 0].clamp(1e-4, 1.0 - 1e-4)
         inside = frame.fov
         loss = F.binary_cross_entropy(probability[inside], frame.tool[inside].float())
@@ -271,7 +285,7 @@ class ToolField(Component):
         weights = torch.ones(tool.shape[0])
         hull = tool_hull(state.means, state.opacities, tool, self.config.min_hull_opacity)
         if hull is not None:
-            margin = self.config.densify_margin
+            margin = self.config.densify_margin * float(self.unit)
             weights[hull.sdf(state.means, 2 * margin) < margin] = 0.0
         self._remember_tissue(frame)
         occluded, pixels = self._occluded(context, tool)
@@ -286,11 +300,15 @@ class ToolField(Component):
         """Keep, per pixel, the latest training observation of it as tissue."""
         if self.last_tissue_image.shape != frame.image.shape:
             self.last_tissue_image = frame.image.clone()
-        self.last_tissue_image[frame.tissue] = frame.image[frame.tissue]
+        self.last_tissue_image = torch.where(frame.tissue[..., None], frame.image,
+                                             self.last_tissue_image)
 
     def _occluded(self, context: RenderContext, tool: Tensor) -> tuple[Tensor, Tensor]:
         """[N] bool: tissue Gaussians whose projected centre is behind rendered tool; [N, 2]
-        long pixel (column, row) of every Gaussian's centre (clamped into the image)."""
+        long pixel (column, row) of every Gaussian's centre (clamped into the image). Kept for
+        the render it was computed from: the mask loss and densification of a step share it."""
+        if self._occlusion is not None and self._occlusion[0] is context.output:
+            return self._occlusion[1], self._occlusion[2]
         projection, output = context.output.projection, context.output
         height, width = output.depth.shape
         centre = projection.means2d.detach().floor().long()
@@ -300,7 +318,9 @@ class ToolField(Component):
                               centre[:, 1].clamp(0, height - 1)], dim=1)
         behind_tool = output.extras[TOOL_CHANNEL][pixels[:, 1], pixels[:, 0], 0] > 0.5
         nearer = output.depth.detach()[pixels[:, 1], pixels[:, 0]] < projection.depths.detach()
-        return inside & ~tool & behind_tool & nearer, pixels
+        occluded = inside & ~tool & behind_tool & nearer
+        self._occlusion = (output, occluded, pixels)
+        return occluded, pixels
 
     # ---- diagnostics ----
     @torch.no_grad()
@@ -318,6 +338,30 @@ class ToolField(Component):
             strain = float(arap_strain(state.means, gaussians.params["means"], graph).mean())
         return Diagnostics(summed={"collisions": collisions},
                            averaged={"arap_strain_mean": strain})
+
+
+class GradientGate:
+    """Passes per-Gaussian values [N] through unchanged and multiplies their gradient by `keep`
+    ([N] bool, set after the render and before the backward pass; None = keep every gradient).
+    `losses` sets it once it has the render that decides which gradients to drop."""
+
+    def __init__(self):
+        self.keep: Tensor | None = None
+
+    def __call__(self, values: Tensor) -> Tensor:
+        return _Gate.apply(values, self) if values.requires_grad else values
+
+
+class _Gate(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, values: Tensor, gate: GradientGate) -> Tensor:
+        ctx.gate = gate
+        return values.clone()
+
+    @staticmethod
+    def backward(ctx, grad: Tensor) -> tuple[Tensor, None]:
+        keep = ctx.gate.keep
+        return (grad if keep is None else grad * keep.to(grad.dtype)), None
 
 
 def _icp(tree, model: np.ndarray, target: np.ndarray, rotation: np.ndarray,

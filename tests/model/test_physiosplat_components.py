@@ -12,15 +12,17 @@ import torch
 from scipy.spatial.transform import Rotation
 from torch import Tensor
 
-from surgsplat.data.scene import Camera
+from surgsplat.data.scene import Camera, Frame
 from surgsplat.fields.deformation import Deformation, DeformationField
 from surgsplat.fields.hexplane import HexPlaneConfig
-from surgsplat.model.component import FrameTime
+from surgsplat.losses.biomechanics import BiomechanicsConfig
+from surgsplat.model.component import FrameTime, RenderContext, SceneInfo, SetupContext
 from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.physics import (SEMANTIC_KEY, arap_strain, collision_energy, hull_planes,
                                      hull_sdf, neighbour_graph, tool_hull)
-from surgsplat.model.specular import specular_lobe
+from surgsplat.image.pinhole import depth_normals, pixel_rays
+from surgsplat.model.specular import smooth_depth, specular_lobe, view_cosine
 from surgsplat.model.tool_field import ToolFieldConfig, _icp
 from surgsplat.render.render import render
 from surgsplat.render.rotation import quaternion_to_matrix
@@ -169,7 +171,11 @@ def test_volume_energy_is_zero_for_the_identity_and_measures_a_known_compression
     identity = HexPlaneConfig(volume_samples=8).build()  # starts as the identity field
     assert identity.volume_loss(gaussians, 0.3).item() == pytest.approx(0.0, abs=1e-10)
     squeeze = _LinearField(torch.diag(torch.tensor([-0.2, 0.0, 0.0])))  # det = 0.8
-    assert squeeze.volume_loss(gaussians, 0.3).item() == pytest.approx(0.04, rel=1e-4)
+    tissue = int((gaussians.params[SEMANTIC_KEY] >= 0).sum())
+    # Eq. 6 is a sum over the tissue Gaussians (16 sampled of them, each (0.8 - 1)^2 = 0.04),
+    # not their mean: the paper's weight is a weight of that sum (rel. tolerance: float32).
+    assert tissue > squeeze.volume_samples()
+    assert squeeze.volume_loss(gaussians, 0.3).item() == pytest.approx(0.04 * tissue, rel=1e-4)
     assert "volume" in squeeze.loss_names()
 
 
@@ -217,3 +223,130 @@ def test_specular_lobe_peaks_facing_the_camera_and_has_checked_gradients():
         lambda a, s: specular_lobe(depth[9:14, 13:18], K, torch.nn.functional.pad(a, (1, 1, 1, 1)),
                                    torch.nn.functional.pad(s, (1, 1, 1, 1))), (small_a, small_s))
     assert math.isfinite(float(lobe.detach().sum()))
+
+
+def _contact_scene(scale: float) -> tuple[GaussianModel, Tensor]:
+    """A tool cube [-2, 2]^2 x [12, 16] (8 tool Gaussians) over tissue on the plane z = 20, with
+    two tissue Gaussians inside the cube (z = 15) and one within 2 units outside (z = 17), all
+    lengths times `scale`; and the tissue means stretched by 10% about the origin in x."""
+    cube = torch.tensor([[x, y, z] for x in (-2.0, 2.0) for y in (-2.0, 2.0) for z in (12.0, 16.0)])
+    generator = torch.Generator().manual_seed(5)
+    plane = torch.cat([torch.rand(30, 2, generator=generator) * 12 - 6,
+                       torch.full((30, 1), 20.0)], 1)
+    near = torch.tensor([[0.5, 0.0, 15.0], [-0.5, 0.5, 15.0], [0.0, 0.0, 17.0]])
+    points = torch.cat([plane, near, cube]) * scale
+    logits = torch.cat([torch.full((33,), 4.0), torch.full((8,), -4.0)])
+    gaussians = GaussianModel.from_points(points, torch.full_like(points, 0.5),
+                                          GaussianConfig(init_opacity=0.8),
+                                          {SEMANTIC_KEY: logits})
+    stretched = points.clone()
+    stretched[:33, 0] *= 1.1
+    return gaussians, stretched
+
+
+def _energies(scale: float) -> tuple[dict[str, float], dict[str, float]]:
+    """The Biomechanics terms of `_contact_scene(scale)` with extent 40 * scale, and the same
+    energies summed directly over the tissue Gaussians (Eq. 4, 5), divided by the extent^2."""
+    gaussians, stretched = _contact_scene(scale)
+    extent = 40.0 * scale
+    component = BiomechanicsConfig(anchors=10_000, collision_margin=0.05).build()
+    component.setup(SetupContext(scene=SceneInfo(1, 64, 48, (0,)),
+                                 points=gaussians.params["means"].detach(),
+                                 scene_extent=extent, frames=[]))
+    model = SplatModel(gaussians, {})
+    state = model.state_at(FrameTime(0, 0.0)).replace(means=stretched)
+    context = RenderContext(frame=None, when=FrameTime(0, 0.0), camera=None, output=None,
+                            state=state, gaussians=gaussians, iteration=1)
+    terms = component.losses(context, frozenset({"strain", "collision"}))
+    tissue = gaussians.params[SEMANTIC_KEY] >= 0
+    graph = neighbour_graph(gaussians.params["means"], tissue, 16)
+    strain = arap_strain(stretched, gaussians.params["means"], graph).sum()
+    planes = hull_planes(stretched[~tissue])
+    collision = collision_energy(hull_sdf(stretched[tissue], planes), 0.05 * extent).sum()
+    return ({name: float(value) for name, value in terms.items()},
+            {"strain": float(strain) / extent ** 2, "collision": float(collision) / extent ** 2})
+
+
+def test_biomechanical_energies_are_sums_over_tissue_in_units_of_the_extent():
+    terms, direct = _energies(1.0)
+    # Sums over the 33 tissue Gaussians (the paper's weights are weights of sums), not means:
+    # equal to the direct sums within float32 rounding (rel. 1e-4).
+    assert terms["strain"] == pytest.approx(direct["strain"], rel=1e-4)
+    assert terms["collision"] == pytest.approx(direct["collision"], rel=1e-4)
+    assert terms["strain"] > 0 and terms["collision"] > 0  # stretched; tissue in the tool
+    # The same scene in metres instead of millimetres gives the same energies (rel. 1e-3:
+    # float32 lengths 1000 times smaller).
+    in_metres, _ = _energies(1e-3)
+    assert in_metres["strain"] == pytest.approx(terms["strain"], rel=1e-3)
+    assert in_metres["collision"] == pytest.approx(terms["collision"], rel=1e-3)
+
+
+def test_mask_loss_never_flips_tissue_hidden_behind_the_tool():
+    """A large opaque tool Gaussian in front of a tissue Gaussian, under a tool mask covering
+    the image: the hidden tissue's blend weight is ~1e-3, but per-Gaussian Adam would move its
+    logit by ~lr per step regardless. 300 steps at lr 0.05 (15 logit units, past the init 4)
+    must leave it tissue (logit unchanged to 1e-6) while the tool's logit moves towards tool."""
+    means = torch.tensor([[0.0, 0.0, 20.0], [0.0, 0.0, 14.0]])
+    gaussians = GaussianModel.from_points(means, torch.full((2, 3), 0.5),
+                                          GaussianConfig(init_opacity=0.99),
+                                          {SEMANTIC_KEY: torch.tensor([4.0, -4.0])})
+    with torch.no_grad():
+        gaussians.params["log_scales"].fill_(math.log(3.0))
+    field = _tool_field()
+    with torch.no_grad():
+        field.rotations.zero_()
+        field.translations.zero_()
+    model = SplatModel(gaussians, {"tool": field})
+    camera = _camera()
+    full = torch.ones(camera.height, camera.width, dtype=torch.bool)
+    frame = Frame(0, 0.0, torch.zeros(camera.height, camera.width, 3), None, False, camera,
+                  tool=full, fov=full)
+    logits = gaussians.params[SEMANTIC_KEY]
+    optimiser = torch.optim.Adam([logits], lr=0.05)
+    when = FrameTime(0, 0.0)
+    for iteration in range(1, 301):
+        output, state = model.render(camera, when)
+        context = RenderContext(frame=frame, when=when, camera=camera, output=output,
+                                state=state, gaussians=gaussians, iteration=iteration)
+        optimiser.zero_grad()
+        field.losses(context, frozenset({"mask"}))["mask"].backward()
+        optimiser.step()
+    assert logits[0].item() == pytest.approx(4.0, abs=1e-6)
+    assert logits[1].item() < -4.0 - 1.0
+
+
+def test_specular_normals_are_smoothed_against_depth_jitter():
+    """A plane facing the camera at 90 mm with 0.05 mm of white depth jitter, at the phantom's
+    focal length (569 px): one-pixel differences tilt the normal by ~15 degrees (median), the
+    smoothed depth by < 3; a plane without jitter keeps its exact depth (abs. 1e-4 mm)."""
+    K = torch.tensor([[569.5, 0.0, 80.0], [0.0, 569.5, 64.0], [0.0, 0.0, 1.0]])
+    generator = torch.Generator().manual_seed(0)
+    noisy = 90.0 + 0.05 * torch.randn(128, 160, generator=generator)
+
+    def median_tilt_deg(depth: Tensor) -> float:
+        normals, valid = depth_normals(depth, K)
+        return float(torch.rad2deg(torch.acos(normals[..., 2][valid].abs().clamp(max=1.0))).median())
+
+    assert median_tilt_deg(noisy) > 10.0
+    assert median_tilt_deg(smooth_depth(noisy)) < 3.0
+    flat = torch.full((128, 160), 90.0)
+    flat[:, :20] = 0.0  # no depth there: stays 0, and does not pull its neighbours down
+    smoothed = smooth_depth(flat)
+    assert torch.all(smoothed[:, :20] == 0)
+    torch.testing.assert_close(smoothed[:, 20:], flat[:, 20:], atol=1e-4, rtol=0)
+
+
+def test_view_cosine_matches_the_normals_of_depth_normals():
+    """The closed-form n . v equals the cosine between `depth_normals` and the pixel rays on a
+    tilted, curved surface with holes (float64, abs. 1e-9), with the same valid pixels."""
+    K = torch.tensor([[50.0, 0.0, 20.0], [0.0, 45.0, 14.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    y, x = torch.meshgrid(torch.arange(30, dtype=torch.float64),
+                          torch.arange(40, dtype=torch.float64), indexing="ij")
+    depth = 60.0 + 0.4 * x - 0.3 * y + 2.0 * torch.sin(x / 5.0) * torch.cos(y / 7.0)
+    depth[5:8, 10:14] = 0.0
+    cosine, valid = view_cosine(depth, K)
+    normals, expected_valid = depth_normals(depth, K)
+    rays = torch.nn.functional.normalize(pixel_rays(K, 40, 30, torch.float64), dim=-1)
+    expected = (normals * rays).sum(-1).clamp(0.0, 1.0)
+    assert torch.equal(valid, expected_valid)
+    torch.testing.assert_close(cosine[valid], expected[valid], atol=1e-9, rtol=0)
