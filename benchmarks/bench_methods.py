@@ -119,7 +119,9 @@ class Suite:
 PHYSIOSPLAT_WITHOUT_BIOMECHANICS = (
     "components.biomechanics=null", "losses.strain=null", "losses.collision=null",
     "components.deformation.volume_samples=0", "losses.volume=null")
-PHYSIOSPLAT_WITHOUT_SPECULAR = ("components.specular=null", "gaussians.sh_degree=1")
+PHYSIOSPLAT_WITHOUT_SPECULAR = ("components.specular=null",)
+"""Row (c) keeps the preset's diffuse SH degree 0, so that rows (c) and (d) differ by the
+specular lobe alone."""
 
 
 FIDELITY_PRESETS = {"endogsg": "endogaussian", "physiosplat": "endogaussian",
