@@ -63,7 +63,7 @@ def test_components_can_be_added_swapped_and_removed():
     added = apply_values(config, {"components": {"planar": {"kind": "planar"}},
                                   "losses": {"normal": {"weight": 0.2}}}, "f")
     assert added.components["planar"].kind == "planar"
-    assert added.losses["normal"].weight == 0.2 and added.losses["normal"].start_iter == 0
+    assert added.losses["normal"].weight == 0.2 and added.losses["normal"].start == 0
     with pytest.raises(SurgsplatError, match="unknown component kind 'nope'"):
         apply_values(config, {"components": {"x": {"kind": "nope"}}}, "f")
 
