@@ -155,13 +155,11 @@ class Target:
     limit: float
     references: tuple[str, ...] = ()
     relative: bool = False
-    reference_metric: str | None = None  # the references' metric, when not `metric`
 
     def check(self, rows: dict[str, dict]) -> dict | None:
         """The target as measured on `rows` (by case), or None when a row or value is missing."""
         value = rows.get(self.case, {}).get(self.metric)
-        key = self.reference_metric or self.metric
-        refs = [rows.get(name, {}).get(key) for name in self.references]
+        refs = [rows.get(name, {}).get(self.metric) for name in self.references]
         if value is None or any(ref is None for ref in refs):
             return None
         bound = self.limit
@@ -179,8 +177,6 @@ class Target:
             return f"{self.metric} {relation} {self.limit:g}"
         refs = " / ".join(self.references)
         ref = f"max({refs})" if self.at_least and len(self.references) > 1 else refs
-        if self.reference_metric:
-            ref = f"{ref}.{self.reference_metric}"
         bound = f"{self.limit:g} x {ref}" if self.relative else f"{ref} {self.limit:+g}"
         return f"{self.metric} {relation} {bound}"
 
@@ -202,8 +198,6 @@ FIDELITY_TARGETS = (
     Target("physiosplat", "psnr_occluded", True, 1.0, ("endogaussian",)),
     Target("physiosplat", "depth_rmse_occluded_mm", False, 0.8, ("endogaussian",), relative=True),
     Target("physiosplat", "psnr_specular", True, 1.0, ("endogaussian",)),
-    Target("physiosplat", "collisions", False, 1.0, ("physiosplat",), relative=True,
-           reference_metric="collisions_ground_truth"),
     Target("lumistate-hivar", "psnr_tissue", True, 0.5, ("deform3dgs-hivar",)),
     Target("lumistate-livar", "psnr_tissue", True, -0.2, ("deform3dgs-livar",)),
     Target("lumistate-hivar", "reflectance_error", False, 0.5, ("deform3dgs-hivar",),
