@@ -6,8 +6,13 @@
 - `bright_channel_loss` (Eq. 8): the mean squared distance of L_t from the bright channel
   B_t = MaxPool_{2 r0 + 1}(max(R, G, B)) of the observed image, which anchors the illumination
   to the local peak brightness (an upper bound of it when the reflectance is at most 1) and
-  keeps it from collapsing.
-Both are zero for an exact factorisation I = R * L whose L is the bright channel of I.
+  keeps it from collapsing;
+- `illumination_transfer_loss` (a deviation from the paper, see the lumistate preset): the L1
+  distance between the rendered gain G_t (each Gaussian's modulated colour over its reflectance
+  colour, alpha-blended) and L_t, so that the modulation carries the illumination map and the
+  photometric loss pulls the reflectance to I / L_t, as Eq. 7 does.
+All three are zero for an exact factorisation I = R * L whose L is the bright channel of I and
+whose modulation multiplies each Gaussian's colour by L.
 """
 
 from __future__ import annotations
@@ -31,3 +36,13 @@ def bright_channel_loss(illumination: Tensor, image: Tensor, tissue: Tensor,
     target = bright_channel(brightness(image), radius)  # [H, W]
     weights = tissue.to(illumination.dtype)
     return ((illumination - target) ** 2 * weights).sum() / weights.sum().clamp_min(1.0)
+
+
+def illumination_transfer_loss(gain: Tensor, illumination: Tensor, alpha: Tensor,
+                               tissue: Tensor) -> Tensor:
+    """mean |G - alpha L| over the tissue pixels [H, W] (bool), for the rendered gain G
+    [H, W, 1] (alpha-blended, so compared with L [H, W] times the accumulated opacity alpha
+    [H, W]); L and alpha are targets here (no gradient through them: letting L follow G too
+    left the reflectance error unchanged or worse, see the lumistate preset)."""
+    target = (illumination * alpha).detach()[..., None]  # [H, W, 1]
+    return masked_l1(gain, target, tissue)

@@ -9,12 +9,23 @@
   sigma_i and delta_i [K, 3] predicted by a 4-layer fusion MLP from e_t and the sinusoidal
   encoding of the Gaussian's deformed position (normalised by the initial point cloud's centre
   and extent). The position is what makes the modulation vary across the tissue, i.e. what
-  models the near-field attenuation (Section 2.1). Eq. 4 acts on the colour the coefficients
+  models the near-field attenuation (Section 2.1). The position is detached, as in the
+  Deformable-3DGS family the paper builds on: the modulation's colour loss moves colours and
+  the MLP, never the geometry. Eq. 4 acts on the colour the coefficients
   represent, the SH convention's +0.5 included, so that exp(sigma) scales the reflectance colour
-  itself. sigma is bounded to +-`max_log_gain` (a tanh) and the MLP's last layer starts at zero:
-  training starts from no modulation.
+  itself. sigma is bounded to +-`max_log_gain` (a tanh). The MLP's last layer starts with zero
+  weights, delta at 0 and every sigma at the log of the training frames' mean brightness S_t:
+  training starts from one uniform illumination, so that Stage 1 fits base colours at the scale
+  of a reflectance, not of the lit colour that Stage 2 would have to double (issue 28,
+  hypothesis 13).
+- The fusion MLP runs on the occupied corners of a grid of `modulation_grid` cells per side over
+  the normalised positions, and each Gaussian takes the trilinear interpolation of its cell's 8
+  corners (a deviation: the paper evaluates the MLP at every Gaussian). Illumination is smooth,
+  and the corners are about 30x fewer than the Gaussians of a tissue surface.
 - The unmodulated (canonical) coefficients render the reflectance R_t as the channel
-  `output.extras["reflectance"]` [H, W, 3].
+  `output.extras["reflectance"]` [H, W, 3]; each Gaussian's rendered colour over its reflectance
+  colour (channel sums) renders the gain G_t, `output.extras["gain"]` [H, W, 1], the
+  illumination the modulation carries.
 - Embedding cache and Eq. 5: the UNet runs only in training steps (module in training mode and
   gradients on) on training frames; each run stores its e_t in the buffer `embeddings` [F, E]
   (and, in Stage 2, its L_t in `illumination_maps` [F, h, w]). Switching the module to
@@ -24,9 +35,11 @@
   between the two nearest training times (Eq. 5), with no UNet inference; such renders also
   carry the upsampled L_t as `output.extras["illumination"]` [H, W, 1]. A frame whose map Stage 2
   never computed keeps the map 1 (uniform light).
-- Losses "retinex" (Eq. 7) and "bright_channel" (Eq. 8), see losses/retinex.py. Stage 2 is
-  these two terms' `start_iter` in the method config; before it the decoder never runs (Stage 1:
-  "illumination is not explicitly predicted; only e_t modulates appearance").
+- Losses "retinex" (Eq. 7), "bright_channel" (Eq. 8) and "illumination_transfer" (G_t against
+  L_t, a deviation, see the lumistate preset), see losses/retinex.py. Stage 2 is these terms'
+  `start` (a fraction of the run) in the method config; before it the decoder
+  never runs (Stage 1: "illumination is not explicitly predicted; only e_t modulates
+  appearance").
 - Relighting: `relit("uniform")` renders every time under the mean of the training frames'
   embeddings and maps (one constant illumination state); `relit(frame)` under frame `frame`'s.
 """
@@ -45,7 +58,8 @@ from torch import Tensor, nn
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.illumination import LEVELS, IlluminationUNet, brightness
-from surgsplat.losses.retinex import bright_channel_loss, retinex_loss
+from surgsplat.losses.retinex import (bright_channel_loss, illumination_transfer_loss,
+                                      retinex_loss)
 from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
                                        RenderContext, SceneInfo, SetupContext)
 from surgsplat.model.state import GaussianState
@@ -55,6 +69,8 @@ MAP_MULTIPLE = 2 ** (LEVELS - 1)
 """The illumination maps' sides are multiples of this (the UNet pools twice)."""
 UNIFORM = "uniform"
 """`relit` source: the mean illumination state of the training frames."""
+GAIN_FLOOR = 0.05
+"""Smallest canonical colour (sum of the 3 channels) the gain channel divides by."""
 
 
 @dataclass
@@ -73,6 +89,10 @@ class LumiStateConfig(ComponentConfig, kind="lumistate"):
     """Octaves of the sinusoidal positional encoding of the Gaussians' deformed means."""
     mlp_width: int = 64
     """Width of the fusion MLP's three hidden layers."""
+    modulation_grid: int = 32
+    """Cells per side of the grid (over the initial points' centre +- extent) on whose occupied
+    corners the fusion MLP runs; each Gaussian takes the trilinear interpolation of its cell's
+    corners. 32 samples the finest encoding octave (pe_frequencies 4) 4 times per period."""
     sh_degree: int = 1
     """Modulate the SH coefficients up to this degree (higher ones pass unchanged)."""
     max_log_gain: float = 3.0
@@ -111,6 +131,37 @@ def positional_encoding(points: Tensor, octaves: int) -> Tensor:
     return torch.cat([points, angles.sin(), angles.cos()], dim=1)
 
 
+CORNERS = torch.tensor([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)])
+"""[8, 3] offsets of a grid cell's corners from its lowest one."""
+
+
+def grid_corners(points: Tensor, cells: int) -> tuple[Tensor, Tensor, Tensor]:
+    """What trilinear interpolation at points [N, 3] needs from a grid of spacing 2 / cells
+    (a corner at 0): (corners [U, 3], the distinct corners of the cells holding a point; index
+    [N, 8] into them; weights [N, 8], non-negative, summing to 1 per point), so that a function
+    f sampled at the corners interpolates as sum_k weights[:, k] f(corners[index[:, k]]).
+    Points may lie anywhere: only occupied cells count."""
+    grid = (points + 1.0) * (cells / 2)  # grid units
+    lowest = grid.floor()
+    fraction = grid - lowest  # [N, 3] in [0, 1)
+    lowest = lowest.long()
+    origin = lowest.min(dim=0).values
+    cell_ids = lowest - origin  # [N, 3] >= 0
+    sides = cell_ids.max(dim=0).values + 2  # corner ids reach one past the last cell
+    strides = torch.stack([sides[1] * sides[2], sides[2], torch.ones_like(sides[2])])  # [3]
+    cells_used, cell_of_point = torch.unique(cell_ids @ strides, return_inverse=True)  # [V], [N]
+    cell_coords = torch.stack([cells_used // strides[0], cells_used // strides[1] % sides[1],
+                               cells_used % sides[2]], dim=1)  # [V, 3]
+    corner_keys = ((cell_coords[:, None] + CORNERS) @ strides).flatten()  # [V * 8]
+    keys, corner_of_cell = torch.unique(corner_keys, return_inverse=True)  # [U], [V * 8]
+    corner_coords = torch.stack([keys // strides[0], keys // strides[1] % sides[1],
+                                 keys % sides[2]], dim=1) + origin  # [U, 3]
+    index = corner_of_cell.view(-1, 8)[cell_of_point]  # [N, 8]
+    x, y, z = torch.stack([1.0 - fraction, fraction], dim=2).unbind(1)  # [N, 2] each
+    weights = (x[:, :, None, None] * y[:, None, :, None] * z[:, None, None, :]).flatten(1)
+    return corner_coords.to(points.dtype) * (2.0 / cells) - 1.0, index, weights
+
+
 class FusionMLP(nn.Module):
     """F_psi: (positional encoding [N, P], embedding [E]) -> (sigma, delta) [N, K, 3] each; four
     linear layers, the first applied to the concatenation [pe, e] (computed as two products so
@@ -126,12 +177,12 @@ class FusionMLP(nn.Module):
         nn.init.zeros_(self.last.weight)
         nn.init.zeros_(self.last.bias)
 
-    def forward(self, encoding: Tensor, embedding: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(self, encoding: Tensor, embedding: Tensor) -> Tensor:
+        """[N, 2 K 3]: sigma then delta, each [K, 3] flattened."""
         weight = self.first.weight
         from_embedding = embedding @ weight[:, self.encoding_dim:].T + self.first.bias  # [W]
         x = encoding @ weight[:, :self.encoding_dim].T + from_embedding  # [N, W]
-        out = self.last(self.hidden(x)).view(-1, 2, self.coeffs, 3)
-        return out[:, 0], out[:, 1]
+        return self.last(self.hidden(x))
 
 
 class LumiState(Component):
@@ -144,6 +195,9 @@ class LumiState(Component):
                                  "map_height, map_width) before it is built")
         if not 0 <= config.sh_degree <= 3:
             raise SurgsplatError(f"lumistate sh_degree must be 0..3, got {config.sh_degree}")
+        if config.modulation_grid < 1:
+            raise SurgsplatError(f"lumistate modulation_grid must be >= 1 cell, got "
+                                 f"{config.modulation_grid}")
         self.config = config
         frames, height, width = config.num_frames, config.map_height, config.map_width
         self.unet = IlluminationUNet(config.unet_channels, config.embedding_dim)
@@ -166,6 +220,10 @@ class LumiState(Component):
         for frame in context.frames:
             self.known[frame.index] = True
             self.brightness[frame.index] = self.downsample(brightness(frame.image))
+        with torch.no_grad():  # every sigma starts at the log mean brightness (module docstring)
+            bound = self.config.max_log_gain
+            log_mean = self.brightness[self.known].mean().clamp_min(1e-3).log() / bound
+            self.fusion.last.bias[:self.fusion.coeffs * 3] = bound * log_mean.clamp(-0.9, 0.0).atanh()
         self.refresh_caches()
 
     def train(self, mode: bool = True) -> "LumiState":
@@ -240,10 +298,14 @@ class LumiState(Component):
     def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
         """Eq. 4 on the coefficients up to `sh_degree` (see the module docstring)."""
         embedding = self.embedding(when)
-        encoding = positional_encoding((state.means - self.centre) / self.extent,
-                                       self.config.pe_frequencies)
+        points = (state.means.detach() - self.centre) / self.extent  # no gradient to geometry
+        corners, index, weights = grid_corners(points, self.config.modulation_grid)
+        at_corners = self.fusion(positional_encoding(corners, self.config.pe_frequencies),
+                                 embedding)  # [U, 2 K 3]
+        out = F.embedding_bag(index, at_corners, per_sample_weights=weights,
+                              mode="sum")  # [N, 2 K 3]
+        log_gain, offset = out.view(-1, 2, self.fusion.coeffs, 3).unbind(1)  # [N, K, 3] each
         coeffs = min(self.fusion.coeffs, state.sh.shape[1])
-        log_gain, offset = self.fusion(encoding, embedding)  # [N, K, 3] each
         bound = self.config.max_log_gain
         log_gain = bound * torch.tanh(log_gain[:, :coeffs] / bound)
         grey = torch.zeros_like(state.sh[:1, :coeffs])  # the +0.5 of the SH colour, as a DC term
@@ -254,9 +316,14 @@ class LumiState(Component):
 
     def render_channels(self, state: GaussianState, gaussians, camera,
                         when: FrameTime) -> dict[str, Tensor]:
-        """The reflectance: the canonical (unmodulated) coefficients' colour [N, 3]."""
-        return {"reflectance": sh_colour(state.sh_degree, gaussians.sh_coeffs(), state.means,
-                                         camera.world_to_camera)}
+        """The reflectance: the canonical (unmodulated) coefficients' colour [N, 3]; the gain
+        [N, 1]: the rendered (modulated, exposed) colour's channel sum over the reflectance's,
+        i.e. the illumination each Gaussian carries."""
+        reflectance = sh_colour(state.sh_degree, gaussians.sh_coeffs(), state.means,
+                                camera.world_to_camera)  # [N, 3]
+        lit = sh_colour(state.sh_degree, state.sh, state.means, camera.world_to_camera)
+        gain = lit.sum(dim=1) / reflectance.sum(dim=1).clamp_min(GAIN_FLOOR)  # [N]
+        return {"reflectance": reflectance, "gain": gain[:, None]}
 
     def finish_render(self, output, camera, when: FrameTime) -> None:
         if not self.is_live(when):
@@ -270,7 +337,7 @@ class LumiState(Component):
                              align_corners=False)[0, 0]
 
     def loss_names(self) -> tuple[str, ...]:
-        return ("retinex", "bright_channel")
+        return ("retinex", "bright_channel", "illumination_transfer")
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         """Stage 2's terms from this step's L_t (the decoder on the step's UNet features)."""
@@ -292,6 +359,9 @@ class LumiState(Component):
         if "bright_channel" in active:
             terms["bright_channel"] = bright_channel_loss(illumination, frame.image, frame.tissue,
                                                           self.config.bright_radius)
+        if "illumination_transfer" in active:
+            terms["illumination_transfer"] = illumination_transfer_loss(
+                context.output.extras["gain"], illumination, context.output.alpha, frame.tissue)
         return terms
 
 

@@ -8,11 +8,13 @@ from surgsplat.cli.render_videos import write_run_videos
 from surgsplat.data.scene import load_scene, read_image
 from surgsplat.eval.decomposition import DecompositionScores
 from surgsplat.fields.illumination import IlluminationUNet, bright_channel, brightness
-from surgsplat.losses.retinex import bright_channel_loss, retinex_loss
+from surgsplat.losses.retinex import (bright_channel_loss, illumination_transfer_loss,
+                                      retinex_loss)
 from surgsplat.methods.registry import method_config
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
-from surgsplat.model.lumistate import LumiState, LumiStateConfig, interpolate_in_time
+from surgsplat.model.lumistate import (LumiState, LumiStateConfig, grid_corners,
+                                      interpolate_in_time)
 from surgsplat.model.state import GaussianState
 from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import Trainer
@@ -67,7 +69,7 @@ def lumistate_method(iterations: int, stage2: int):
     config.train.checkpoint_every = 1000
     config.init.max_points = 800
     config.densify.stop = 0.0  # no densification
-    for term in ("retinex", "bright_channel"):
+    for term in ("retinex", "bright_channel", "illumination_transfer"):
         config.losses[term].start = stage2 / iterations
     return config
 
@@ -80,7 +82,8 @@ def test_lumistate_trains_in_two_stages_restores_and_relights(small_phantom, tmp
     assert isinstance(component, LumiState)
     stages = []
     trainer.fit(lambda stats: stages.append(set(stats.terms)))
-    assert "retinex" not in stages[3] and {"retinex", "bright_channel"} <= stages[-1]
+    assert "retinex" not in stages[3]
+    assert {"retinex", "bright_channel", "illumination_transfer"} <= stages[-1]
     trained = [frame.index for frame in scene.train_frames]
     # Stage 2 stored maps of the frames it saw; the UNet weights changed in both stages
     assert (component.illumination_maps[trained] != 1.0).any()
@@ -145,13 +148,73 @@ def test_colour_modulation_sends_no_gradient_to_the_means():
     Deformable-3DGS family, so the colour loss moves colours, not geometry."""
     torch.manual_seed(0)
     component = LumiState(LumiStateConfig(num_frames=2, map_height=8, map_width=8)).eval()
+    component.known[0] = True
     torch.nn.init.normal_(component.fusion.last.weight, std=0.1)  # a modulation that varies
     means = torch.randn(6, 3, requires_grad=True)
     sh = torch.randn(6, 4, 3, requires_grad=True)
     state = GaussianState(means=means, scales=torch.ones(6, 3), quats=torch.ones(6, 4),
                           opacities=torch.ones(6), sh=sh, sh_degree=1)
-    modulated = component.transform(state, None, FrameTime(0, 0.0))
-    modulated.sh.square().sum().backward()
+    component.transform(state, None, FrameTime(0, 0.0)).sh.square().sum().backward()
     assert means.grad is None
     assert sh.grad.abs().min() > 0.0  # the colours do get the gradient
     assert component.fusion.last.weight.grad.abs().max() > 0.0  # and so does the MLP
+
+
+def test_grid_interpolation_reproduces_linear_functions_and_corners():
+    """The fusion MLP runs on the occupied corners of a grid; trilinear interpolation is exact
+    for a function linear in the position (tolerance 1e-5, float32) and at the corners."""
+    torch.manual_seed(0)
+    points = torch.cat([torch.rand(500, 3) * 2 - 1, torch.rand(20, 3) * 3 + 2])  # some outside
+    cells = 8
+    corners, index, weights = grid_corners(points, cells)
+    assert index.shape == weights.shape == (520, 8) and (weights >= 0).all()
+    torch.testing.assert_close(weights.sum(1), torch.ones(520))
+    assert corners.shape[0] == torch.unique(corners, dim=0).shape[0] <= 520 * 8  # distinct
+    slope, intercept = torch.randn(3, 5), torch.randn(5)
+    values = corners @ slope + intercept  # [U, 5] a linear function at the corners
+    interpolated = (weights[:, :, None] * values[index]).sum(1)
+    torch.testing.assert_close(interpolated, points @ slope + intercept, atol=1e-5, rtol=1e-5)
+    # a point on a corner takes that corner's value alone
+    on_corner = torch.tensor([[0.25, -0.5, 0.75]])  # multiples of the spacing 2 / 8
+    corners, index, weights = grid_corners(on_corner, cells)
+    assert weights.max() == 1.0
+    torch.testing.assert_close(corners[index[0, weights[0].argmax()]], on_corner[0])
+
+
+def test_gain_channel_is_the_modulation_and_the_transfer_loss_moves_the_mlp():
+    """Issue 28, hypothesis 13: the modulation must carry L_t for the reflectance to lose the
+    static shading. The gain channel is each Gaussian's rendered colour over its reflectance
+    (exactly the gain exp(sigma) for delta = 0, tolerance 1e-5), and the transfer loss, which ties it to
+    L_t, sends a gradient to the fusion MLP (which Eq. 7 alone never does)."""
+    torch.manual_seed(0)
+    component = LumiState(LumiStateConfig(num_frames=2, map_height=8, map_width=8)).eval()
+    component.known[0] = True
+    coeffs = component.fusion.coeffs
+    with torch.no_grad():  # sigma = log 0.4 on every coefficient, delta = 0
+        component.fusion.last.bias[:coeffs * 3] = torch.log(torch.tensor(0.4))
+    sh = torch.zeros(6, 4, 3)
+    sh[:, 0] = torch.rand(6, 3) + 0.5  # colours well above the floor
+    state = GaussianState(means=torch.randn(6, 3), scales=torch.ones(6, 3),
+                          quats=torch.ones(6, 4), opacities=torch.ones(6), sh=sh, sh_degree=1)
+
+    class Canonical:
+        def sh_coeffs(self):
+            return sh
+
+    class Camera:
+        world_to_camera = torch.eye(4)
+
+    modulated = component.transform(state, None, FrameTime(0, 0.0))
+    gain = component.render_channels(modulated, Canonical(), Camera(), FrameTime(0, 0.0))["gain"]
+    bound = component.config.max_log_gain  # sigma passes through bound tanh(sigma / bound)
+    expected = float(torch.exp(bound * torch.tanh(torch.log(torch.tensor(0.4)) / bound)))
+    torch.testing.assert_close(gain, torch.full((6, 1), expected), atol=1e-5, rtol=1e-5)
+    # the loss vanishes when the rendered gain is the map (times alpha), and otherwise reaches
+    # the MLP through the gain
+    tissue = torch.ones(4, 4, dtype=torch.bool)
+    alpha = torch.full((4, 4), 0.9)
+    assert float(illumination_transfer_loss(torch.full((4, 4, 1), 0.36),
+                                            torch.full((4, 4), 0.4), alpha, tissue)) < 1e-7
+    rendered = gain.mean().expand(4, 4, 1)  # stand-in for the rasterised channel
+    illumination_transfer_loss(rendered, torch.full((4, 4), 0.8), alpha, tissue).backward()
+    assert component.fusion.last.bias.grad[:coeffs * 3].abs().max() > 0.0
