@@ -79,8 +79,8 @@ from surgsplat.atomic import write_text_atomic  # noqa: E402
 from surgsplat.render.native import system_info  # noqa: E402
 
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
-RUN_COLUMNS = ("train_seconds", "train_time_ratio", "train_cpu_seconds", "wall_seconds",
-               "num_gaussians", "peak_rss_mb")
+RUN_COLUMNS = ("train_seconds", "train_time_ratio", "train_cpu_seconds", "train_cpu_ratio",
+               "wall_seconds", "num_gaussians", "peak_rss_mb")
 """Columns every suite reports after its own metrics."""
 
 
