@@ -223,7 +223,8 @@ class LumiState(Component):
         with torch.no_grad():  # every sigma starts at the log mean brightness (module docstring)
             bound = self.config.max_log_gain
             log_mean = self.brightness[self.known].mean().clamp_min(1e-3).log() / bound
-            self.fusion.last.bias[:self.fusion.coeffs * 3] = bound * log_mean.clamp(-0.9, 0.0).atanh()
+            start = bound * log_mean.clamp(-0.9, 0.0).atanh()
+            self.fusion.last.bias[:self.fusion.coeffs * 3] = start
         self.refresh_caches()
 
     def train(self, mode: bool = True) -> "LumiState":

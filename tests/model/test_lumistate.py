@@ -184,8 +184,8 @@ def test_grid_interpolation_reproduces_linear_functions_and_corners():
 def test_gain_channel_is_the_modulation_and_the_transfer_loss_moves_the_mlp():
     """Issue 28, hypothesis 13: the modulation must carry L_t for the reflectance to lose the
     static shading. The gain channel is each Gaussian's rendered colour over its reflectance
-    (exactly the gain exp(sigma) for delta = 0, tolerance 1e-5), and the transfer loss, which ties it to
-    L_t, sends a gradient to the fusion MLP (which Eq. 7 alone never does)."""
+    (exactly the gain exp(sigma) for delta = 0, tolerance 1e-5), and the transfer loss, which
+    ties it to L_t, sends a gradient to the fusion MLP (which Eq. 7 alone never does)."""
     torch.manual_seed(0)
     component = LumiState(LumiStateConfig(num_frames=2, map_height=8, map_width=8)).eval()
     component.known[0] = True

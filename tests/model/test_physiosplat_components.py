@@ -325,7 +325,8 @@ def test_specular_normals_are_smoothed_against_depth_jitter():
 
     def median_tilt_deg(depth: Tensor) -> float:
         normals, valid = depth_normals(depth, K)
-        return float(torch.rad2deg(torch.acos(normals[..., 2][valid].abs().clamp(max=1.0))).median())
+        tilt = torch.acos(normals[..., 2][valid].abs().clamp(max=1.0))
+        return float(torch.rad2deg(tilt).median())
 
     assert median_tilt_deg(noisy) > 10.0
     assert median_tilt_deg(smooth_depth(noisy)) < 3.0
