@@ -14,8 +14,8 @@ towards 0, which cuts white jitter's tilt about fivefold. The lobe is shaded per
 (deferred) from the alpha-blended beta (`specular_albedo` channel: sum_i w_i beta_i, which
 carries the alpha_i of Eq. 7) and the blended sharpness 1 / gamma^2 (`specular_sharpness`
 channel, normalised by the pixel's alpha), and added to the rendered colour:
-C += beta_bar exp((n . v - 1) sharpness_bar). The depth normal is detached, so highlights never bend the geometry; pixels without a valid depth normal get no
-lobe. The lobe is white and not scaled by an exposure component.
+C += beta_bar exp((n . v - 1) sharpness_bar). The depth normal is detached, so highlights never
+bend the geometry; pixels without a valid depth normal get no lobe. The lobe is white and not scaled by an exposure component.
 """
 
 from __future__ import annotations
