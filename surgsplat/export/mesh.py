@@ -145,9 +145,9 @@ class MeshExtractor:
         return self._canonical_centres()[keep].numpy(), opacity[keep].numpy()
 
     def _canonical_centres(self) -> Tensor:
-        """[N, 3] the canonical centres the SDF meets (`SDFField.centres`: anchored ones for
+        """[N, 3] the canonical centres (`SplatModel.canonical_means`: the anchored ones for
         mesh-anchored Gaussians), from which the deformation's displacement is measured."""
-        return self.field.centres(self.model.gaussians).detach()
+        return self.model.canonical_means().detach()
 
     def _carry(self, vertices: np.ndarray, when: FrameTime) -> np.ndarray:
         """Canonical vertices [V, 3] -> their positions at `when`: each moved by the weighted

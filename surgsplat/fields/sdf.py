@@ -28,9 +28,11 @@ The coupling, as the component contract expresses it:
   to the frame's measured depth). The depth loss of Eq. 5 is the method's depth component, whose
   rendered depth the SDF opacity shapes.
 
-Where the field meets the Gaussians: at their canonical centres, or, when another component of
-the method places the canonical Gaussians (`canonical_means`, e.g. DRAWER's mesh anchors), at the
-centres it gives them, where they are rendered (`centres`).
+Where the field meets the Gaussians: at their canonical parameters params["means"], also when
+another component places the rendered canonical Gaussians elsewhere (DRAWER's mesh anchors clip
+them onto the faces of this field's zero level, where f is 0 by construction: the projection loss
+would then never pull a drifting mean back, nor would the field learn where the tissue is; on the
+full phantom that lost the mesh over half the scene and 21 dB, issue 28).
 
 Sign convention: f > 0 in front of the surface (the camera side, free space), f < 0 behind it.
 `setup` fits the field to the initial point cloud along the first camera's rays before training.
@@ -39,7 +41,6 @@ Sign convention: f > 0 in front of the surface (the camera side, free space), f 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 import torch
@@ -119,20 +120,6 @@ class SDFField(Component):
         self.log_beta = nn.Parameter(torch.zeros(()))
         self.register_buffer("box", torch.tensor([[-1.0] * 3, [1.0] * 3]))
         self.register_buffer("initial_beta", torch.ones(()))  # 1 / scene units, set by setup
-        self._others: list[Component] = []  # the method's other components, in order
-
-    def bind(self, components: Mapping[str, Component]) -> None:
-        self._others = [component for component in components.values() if component is not self]
-
-    def centres(self, gaussians: GaussianModel) -> Tensor:
-        """[N, 3] canonical centres at which the field meets the Gaussians (scene units): where
-        the first component that places the canonical Gaussians puts them (`canonical_means`,
-        differentiable in params["means"]), else params["means"]."""
-        for component in self._others:
-            placed = component.canonical_means(gaussians)
-            if placed is not None:
-                return placed
-        return gaussians.params["means"]
 
     # ---- the field ----
     def unit(self) -> Tensor:
@@ -214,9 +201,9 @@ class SDFField(Component):
         return groups
 
     def tissue_bell(self, gaussians: GaussianModel) -> Tensor:
-        """[N] the bell of f at the canonical centres (`centres`); 1 for Gaussians that a tool
-        field of the method models as tool (the field describes the tissue surface)."""
-        factor = self.bell(self.signed_distance(self.centres(gaussians)))
+        """[N] the bell of f at the canonical centres; 1 for Gaussians that a tool field of the
+        method models as tool (the field describes the tissue surface)."""
+        factor = self.bell(self.signed_distance(gaussians.params["means"]))
         tissue = tissue_members(gaussians.params)
         return factor if tissue is None else torch.where(tissue, factor, 1.0)
 
@@ -238,7 +225,7 @@ class SDFField(Component):
         rows = (torch.arange(params["means"].shape[0]) if tissue is None
                 else tissue.nonzero()[:, 0])
         pick = rows[torch.randperm(rows.numel())[:self.config.samples_per_step]]
-        means = self.centres(context.gaussians)[pick]  # [K, 3] canonical
+        means = params["means"][pick]  # [K, 3] canonical
         value, gradient = self.value_and_gradient(means)
         normal = nn.functional.normalize(gradient, dim=1).detach()  # [K, 3]
         terms: dict[str, Tensor] = {}

@@ -228,8 +228,8 @@ class Component(nn.Module):
     def canonical_means(self, gaussians: GaussianModel) -> Tensor | None:
         """[N, 3] where this component puts the canonical Gaussians before any deformation
         (e.g. DRAWER's anchors on mesh faces), differentiable in params["means"], or None when
-        it leaves them at params["means"]. Components that meet the Gaussians in canonical space
-        (a signed distance field, the mesh export) ask the method's components in order."""
+        it leaves them at params["means"]. The mesh export measures the deformation's
+        displacement from there (`SplatModel.canonical_means` asks the components in order)."""
         return None
 
     def densify_weights(self, context: RenderContext) -> Tensor | None:

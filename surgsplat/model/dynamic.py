@@ -38,6 +38,16 @@ class SplatModel(nn.Module):
                              opacities=torch.sigmoid(params["opacity_logits"]),
                              sh=self.gaussians.sh_coeffs(), sh_degree=self.gaussians.sh_degree)
 
+    def canonical_means(self) -> Tensor:
+        """[N, 3] where the canonical Gaussians are before any deformation: as the first
+        component that places them puts them (`Component.canonical_means`, e.g. DRAWER's anchors
+        on mesh faces), else params["means"]."""
+        for component in self.components.values():
+            placed = component.canonical_means(self.gaussians)
+            if placed is not None:
+                return placed
+        return self.gaussians.params["means"]
+
     def state_at(self, when: FrameTime) -> GaussianState:
         """The Gaussians at `when`: the canonical state through every component's transform."""
         state = self.canonical_state()

@@ -30,7 +30,8 @@ the anchored centres (evaluated there, `fields.deformation`), so over time each 
 the tissue around its face. The mesh itself is canonical; the mesh export carries its vertices to
 a frame by the displacement of the nearby Gaussians from their anchored canonical centres
 (`canonical_means`; `export.mesh`), i.e. by the same field. The method's SDF evaluates its bell
-and its losses at those anchored centres too, where the Gaussians are rendered.
+and its losses at the raw means (see `fields.sdf`): its projection loss pulls them back onto the
+zero level, which keeps the clip small.
 
 Gaussians that a tool field marks as tool (`model.physics.tissue_members`) are left as they are.
 """
@@ -258,9 +259,8 @@ class MeshAnchor(Component):
     def canonical_means(self, gaussians: GaussianModel) -> Tensor:
         """[N, 3] the anchored canonical centres (tool Gaussians' as they are), straight-through
         to params["means"]: where this component puts the canonical Gaussians before any
-        deformation. The method's SDF is evaluated there, and the mesh export measures the
-        deformation's displacement from there (not from the raw means, whose clip offset is no
-        motion)."""
+        deformation. The mesh export measures the deformation's displacement from there (not
+        from the raw means, whose clip offset is no motion)."""
         self._ensure_anchored(gaussians)
         means = gaussians.params["means"]
         corners = self.face_corners(gaussians)

@@ -15,7 +15,7 @@ from surgsplat.data.scene import load_scene
 from surgsplat.export.mesh import MeshExtractor, MeshOptions
 from surgsplat.fields.sdf import SDFConfig, SDFField
 from surgsplat.methods.registry import method_config
-from surgsplat.model.component import Component, ComponentConfig, FrameTime
+from surgsplat.model.component import Component, ComponentConfig, FrameTime, RenderContext
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.mesh_anchor import (ANCHOR_KEY, MeshAnchor, MeshAnchorConfig, clip_tilt,
@@ -204,10 +204,11 @@ class BallField(SDFField):
         return points.norm(dim=1) - 1.0
 
 
-def test_the_sdf_and_the_mesh_export_use_the_anchored_centres():
+def test_the_mesh_export_uses_the_anchored_centres_and_the_sdf_the_raw_means():
     """Without deformation nothing moves: the exported mesh at any time is the canonical one (no
-    anchor clip offset added; tolerance 1e-6), and the SDF's bell and losses are taken at the
-    anchored centres, where the Gaussians are rendered, not at the raw means."""
+    anchor clip offset added; tolerance 1e-6). The SDF's bell and losses are taken at the raw
+    means: at the anchored centres f is 0 by construction, and the projection loss could never
+    pull a drifting mean back (on the full phantom that lost half the mesh, issue 28)."""
     field = BallField(SDFConfig(resolutions=(2,)))
     field.box.copy_(torch.tensor([[-1.5] * 3, [1.5] * 3]))
     anchor, gaussians = anchored_model(400, Ball(1.0), MeshAnchorConfig(resolution=24))
@@ -216,9 +217,16 @@ def test_the_sdf_and_the_mesh_export_use_the_anchored_centres():
     rendered = model.state_at(when).means.detach()
     raw = gaussians.params["means"].detach()
     assert float((rendered - raw).norm(dim=1).max()) > 0.05  # the clip acted
-    torch.testing.assert_close(field.centres(gaussians).detach(), rendered, atol=0, rtol=0)
-    torch.testing.assert_close(model.opacity_factor(), field.bell(field.signed_distance(rendered)),
+    torch.testing.assert_close(model.canonical_means().detach(), rendered, atol=0, rtol=0)
+    torch.testing.assert_close(model.opacity_factor(), field.bell(field.signed_distance(raw)),
                                atol=1e-6, rtol=0)
+    context = RenderContext(frame=None, when=when, camera=None, output=None, state=None,
+                            gaussians=gaussians, iteration=1)
+    loss = field.losses(context, frozenset({"projection"}))["projection"]
+    loss.backward()
+    off_surface = (raw.norm(dim=1) - 1.0).abs() > 1e-3
+    assert float(loss) > 0
+    assert bool(torch.all(gaussians.params["means"].grad[off_surface].abs().sum(dim=1) > 0))
     extractor = MeshExtractor(model, MeshOptions(resolution=24, fit_radius=0.0))
     vertices, _, _ = extractor.canonical_mesh()
     np.testing.assert_allclose(extractor._carry(vertices, when), vertices, atol=1e-6, rtol=0)

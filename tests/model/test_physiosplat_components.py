@@ -315,6 +315,48 @@ def test_mask_loss_never_flips_tissue_hidden_behind_the_tool():
     assert logits[1].item() < -4.0 - 1.0
 
 
+def test_no_loss_of_a_step_reaches_the_colour_or_opacity_of_hidden_tissue():
+    """The tool Gaussian in front of the tissue Gaussian: the photometric loss against a dark
+    tool reaches the tool's colour and opacity but not the hidden tissue's (exactly 0: through
+    the tool's residual transmittance it would paint the tissue in the tool's colours); with the
+    tool moved aside, the tissue's gradient is back."""
+    means = torch.tensor([[0.0, 0.0, 20.0], [0.0, 0.0, 14.0]])
+    gaussians = GaussianModel.from_points(means, torch.full((2, 3), 0.5),
+                                          GaussianConfig(init_opacity=0.9),
+                                          {SEMANTIC_KEY: torch.tensor([4.0, -4.0])})
+    with torch.no_grad():
+        gaussians.params["log_scales"].fill_(math.log(3.0))
+    field = _tool_field()
+    with torch.no_grad():
+        field.rotations.zero_()
+        field.translations.zero_()
+    model = SplatModel(gaussians, {"tool": field})
+    camera = _camera()
+    full = torch.ones(camera.height, camera.width, dtype=torch.bool)
+    frame = Frame(0, 0.0, torch.zeros(camera.height, camera.width, 3), None, False, camera,
+                  tool=full, fov=full)
+    when = FrameTime(0, 0.0)
+
+    def gradients() -> tuple[Tensor, Tensor]:
+        for parameter in gaussians.params.values():
+            parameter.grad = None
+        output, state = model.render(camera, when)
+        context = RenderContext(frame=frame, when=when, camera=camera, output=output,
+                                state=state, gaussians=gaussians, iteration=1)
+        loss = field.losses(context, frozenset({"mask"}))["mask"] + output.rgb.abs().mean()
+        loss.backward()
+        params = gaussians.params
+        return params["sh_dc"].grad.abs().sum(dim=1), params["opacity_logits"].grad.abs()
+
+    colour, opacity = gradients()
+    assert colour[0] == 0 and opacity[0] == 0  # hidden tissue
+    assert colour[1] > 0 and opacity[1] > 0  # the tool
+    with torch.no_grad():
+        field.translations[0, 0] = 30.0  # the tool leaves the view
+    colour, opacity = gradients()
+    assert colour[0] > 0 and opacity[0] > 0
+
+
 def test_specular_normals_are_smoothed_against_depth_jitter():
     """A plane facing the camera at 90 mm with 0.05 mm of white depth jitter, at the phantom's
     focal length (569 px): one-pixel differences tilt the normal by ~15 degrees (median), the
