@@ -77,22 +77,30 @@ def depth_normals(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
 
     Each pixel's four neighbours are back-projected; the normal is the normalised cross product
     (P_right - P_left) x (P_down - P_up), oriented to face away from the camera (n . P > 0 at the
-    pixel's point P, the convention of the rendered planar normals). Returns normals [H, W, 3] and valid [H, W] bool:
-    interior pixels that, and whose four neighbours, have depth > 0, with a non-degenerate cross
-    product.
+    pixel's point P, the convention of the rendered planar normals). Returns normals [H, W, 3]
+    and valid [H, W] bool: interior pixels that, and whose four neighbours, have depth > 0, with
+    a non-degenerate cross product. Computed on contiguous [H, W] planes of x, y and z (a cross
+    product of strided [H, W, 3] slices, forward and backward, was 13 times slower on 640 x 512).
     """
-    points = backproject_camera(depth, K)  # [H, W, 3]
-    valid = torch.zeros(depth.shape, dtype=torch.bool, device=depth.device)
-    horizontal = points[1:-1, 2:] - points[1:-1, :-2]  # [H-2, W-2, 3]
-    vertical = points[2:, 1:-1] - points[:-2, 1:-1]
-    cross = torch.linalg.cross(horizontal, vertical, dim=-1)
-    length = cross.norm(dim=-1, keepdim=True)
-    normal = cross / length.clamp_min(1e-12)
-    facing = (normal * points[1:-1, 1:-1]).sum(-1, keepdim=True)
-    normal = torch.where(facing < 0, -normal, normal)
+    rays = pixel_rays(K, depth.shape[1], depth.shape[0], depth.dtype)
+    x, y, z = depth * rays[:1, :, 0], depth * rays[:, :1, 1], depth  # [H, W] each
+
+    def across(plane: Tensor) -> Tensor:  # right minus left neighbour, interior [H-2, W-2]
+        return plane[1:-1, 2:] - plane[1:-1, :-2]
+
+    def down(plane: Tensor) -> Tensor:  # lower minus upper neighbour, interior [H-2, W-2]
+        return plane[2:, 1:-1] - plane[:-2, 1:-1]
+
+    hx, hy, hz = across(x), across(y), across(z)
+    vx, vy, vz = down(x), down(y), down(z)
+    cross = (hy * vz - hz * vy, hz * vx - hx * vz, hx * vy - hy * vx)
+    length = torch.sqrt(cross[0].square() + cross[1].square() + cross[2].square())
+    facing = cross[0] * x[1:-1, 1:-1] + cross[1] * y[1:-1, 1:-1] + cross[2] * z[1:-1, 1:-1]
+    scale = torch.where(facing < 0, -1.0, 1.0) / length.clamp_min(1e-12)
+    normals = torch.nn.functional.pad(torch.stack([c * scale for c in cross], dim=-1),
+                                      (0, 0, 1, 1, 1, 1))
     positive = depth > 0
-    neighbours = (positive[1:-1, 2:] & positive[1:-1, :-2] & positive[2:, 1:-1]
-                  & positive[:-2, 1:-1] & positive[1:-1, 1:-1])
-    normals = torch.nn.functional.pad(normal.permute(2, 0, 1), (1, 1, 1, 1)).permute(1, 2, 0)
-    valid[1:-1, 1:-1] = neighbours & (length[..., 0] > 1e-12)
+    valid = torch.zeros(depth.shape, dtype=torch.bool, device=depth.device)
+    valid[1:-1, 1:-1] = (positive[1:-1, 2:] & positive[1:-1, :-2] & positive[2:, 1:-1]
+                         & positive[:-2, 1:-1] & positive[1:-1, 1:-1] & (length > 1e-12))
     return normals, valid
