@@ -1,12 +1,17 @@
 """The one way surgsplat replaces a file: write a temporary file beside it, flush it to disk,
 rename it over the target, then flush the folder, so a crash, Ctrl-C, kill -9 or a full disk
 never leaves a half-written file and a finished write survives a power cut. Temporary names are
-unique (process id and a random part), so two writers never share one."""
+unique (host, process id and a random part), so two writers never share one; the first write of a
+process into a folder removes the temporaries that writers on this host which no longer run
+(killed with kill -9, say) left there."""
 
 from __future__ import annotations
 
 import os
+import re
 import secrets
+import socket
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,6 +32,50 @@ def fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
+HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname()) or "host"
+"""This machine's name as it appears in temporary names."""
+_TEMPORARY = re.compile(rf"^\..*\.{re.escape(HOST)}-(\d+)-[0-9a-f]{{8}}\.tmp")
+"""A hidden temporary written on this host; group 1 is its writer's process id."""
+_swept: set[Path] = set()
+"""Folders this process has already cleared of stale temporaries."""
+_swept_lock = threading.Lock()
+
+
+def temporary_path(path: Path) -> Path:
+    """A new unique hidden temporary name beside `path`, with the same suffix."""
+    return path.with_name(f".{path.stem}.{HOST}-{os.getpid()}-{secrets.token_hex(4)}.tmp"
+                          f"{path.suffix}")
+
+
+def is_running(pid: int) -> bool:
+    """Whether process `pid` exists on this host."""
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, OverflowError):
+        return False
+    except PermissionError:
+        return True  # another user's process
+    return True
+
+
+def remove_stale_temporaries(folder: Path) -> None:
+    """Remove the temporaries in `folder` of writers on this host that no longer run, once per
+    folder and process (a writer killed mid-write leaves its temporary behind)."""
+    folder = Path(folder).resolve()
+    with _swept_lock:
+        if folder in _swept:
+            return
+        _swept.add(folder)
+    try:
+        names = [entry.name for entry in os.scandir(folder)]
+    except OSError:
+        return  # the write itself reports a folder that cannot be read
+    for name in names:
+        match = _TEMPORARY.match(name)
+        if match and not is_running(int(match.group(1))):
+            (folder / name).unlink(missing_ok=True)
+
+
 @contextmanager
 def replacing(path: Path, keep_previous: Path | None = None) -> Iterator[Path]:
     """A temporary path beside `path` (same suffix) for the block to write, by name, in full;
@@ -39,7 +88,8 @@ def replacing(path: Path, keep_previous: Path | None = None) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix}")
+    remove_stale_temporaries(path.parent)
+    tmp = temporary_path(path)
     try:
         yield tmp
         fd = os.open(tmp, os.O_RDONLY)

@@ -8,6 +8,9 @@ is recorded failed with its error while the others go on. The batch is resumable
 finished (done or failed) are skipped, an interrupted clip re-imports only when its scene is
 incomplete and resumes training from its checkpoint. DIR/summary.csv collects every clip's
 state and metrics, DIR/report.html (with the `report` extra) their runs.
+
+A failed clip is one line on the console (its stage and error, never a task's traceback), and
+the batch then exits with status 1; a second batch into a DIR in use is refused.
 """
 
 from __future__ import annotations
@@ -23,12 +26,14 @@ from rich.console import Console
 from rich.progress import TextColumn
 
 from surgsplat.atomic import write_text_atomic
-from surgsplat.cli.batch_stages import (DONE, FAILED, ClipJob, eval_stage, import_stage,
-                                        read_status, record_status, render_stage, summary_row,
-                                        train_stage, trained_iterations)
+from surgsplat.cli.batch_stages import (DONE, FAILED, STAGES, ClipJob, StageFailure,
+                                        attempt_stage, error_line, job_config, planned_iterations,
+                                        read_status, record_outcome, summary_row,
+                                        trained_iterations)
 from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
-from surgsplat.methods.registry import PRESETS, method_config
+from surgsplat.methods.registry import PRESETS
+from surgsplat.train.run import run_lock
 
 SUMMARY_FILE = "summary.csv"
 REPORT_FILE = "report.html"
@@ -37,7 +42,7 @@ GIB = 2**30
 
 
 def clip_jobs(clips: list[Path], out: Path, method: str, iterations: int | None, threads: int,
-              fps: float, geometry: bool = True) -> list[ClipJob]:
+              fps: float, geometry: bool = True, settings: tuple[str, ...] = ()) -> list[ClipJob]:
     """One job per clip, in OUT/<clip file or folder name without suffix>; SurgsplatError for
     a missing clip or two clips of one name."""
     jobs, names = [], {}
@@ -51,7 +56,7 @@ def clip_jobs(clips: list[Path], out: Path, method: str, iterations: int | None,
                                  f"{out}/<name>, so names must differ")
         names[name] = clip
         jobs.append(ClipJob(clip.resolve(), out.resolve() / name, method, iterations, threads,
-                            fps, geometry))
+                            fps, geometry, settings))
     return jobs
 
 
@@ -66,15 +71,16 @@ def ray_module():
 
 
 def submit_clip(ray, job: ClipJob, memory_gb: float, retries: int) -> list:
-    """The clip's four chained tasks, submitted; their ObjectRefs in stage order."""
+    """The clip's chained tasks, one per stage, submitted; their ObjectRefs in stage order. A
+    stage retries its errors itself (attempt_stage); Ray retries a task whose worker died."""
     options = {"num_cpus": job.threads, "memory": int(memory_gb * GIB),
-               "max_retries": retries, "retry_exceptions": True}
-    scene = ray.remote(import_stage).options(name=f"import {job.name}", **options).remote(job)
-    run = ray.remote(train_stage).options(name=f"train {job.name}", **options).remote(job, scene)
-    evaluated = ray.remote(eval_stage).options(name=f"eval {job.name}", **options).remote(job, run)
-    rendered = ray.remote(render_stage).options(name=f"render {job.name}",
-                                                **options).remote(job, evaluated)
-    return [scene, run, evaluated, rendered]
+               "max_retries": retries, "retry_exceptions": False}
+    refs, previous = [], None
+    for stage in STAGES:
+        previous = ray.remote(attempt_stage).options(name=f"{stage} {job.name}", **options) \
+            .remote(stage, job, previous, retries)
+        refs.append(previous)
+    return refs
 
 
 def run_batch(jobs: list[ClipJob], ray_address: str | None, num_cpus: int | None,
@@ -104,9 +110,7 @@ def _follow(ray, jobs: list[ClipJob], memory_gb: float, retries: int,
     refs = {job.name: submit_clip(ray, job, memory_gb, retries) for job in jobs}
     recorded = []
     with progress_bar(TextColumn("{task.fields[stage]}")) as bar:
-        tasks = {job.name: bar.add_task(job.name, stage="queued",
-                                        total=method_config(job.method).train.iterations
-                                        if job.iterations is None else job.iterations)
+        tasks = {job.name: bar.add_task(job.name, stage="queued", total=planned_iterations(job))
                  for job in jobs}
         waiting = list(jobs)
         while waiting:
@@ -115,20 +119,17 @@ def _follow(ray, jobs: list[ClipJob], memory_gb: float, retries: int,
             ready = set(ready)
             for job in list(waiting):
                 stage_refs = refs[job.name]
-                done = sum(ref in ready for ref in stage_refs)
-                failed = _first_failure(ray, stage_refs, ready)
                 task = tasks[job.name]
-                if failed is not None or done == len(stage_refs):
-                    seconds = time.perf_counter() - started
-                    status = record_status(job, DONE, seconds, 1) if failed is None else \
-                        record_status(job, FAILED, seconds, retries + 1, *failed)
+                if stage_refs[-1] in ready:  # the last stage ends after the others
+                    outcome = _clip_outcome(ray, stage_refs, retries)
+                    status = record_outcome(job, outcome, time.perf_counter() - started)
                     recorded.append(status)
-                    bar.update(task, stage=status["state"] if failed is None else
-                               f"failed in {failed[0]}: {failed[1]}")
+                    bar.update(task, stage=status["state"] if status["state"] == DONE else
+                               f"failed in {status['stage']}: {status['error']}")
                     waiting.remove(job)
                     continue
-                bar.update(task, completed=trained_iterations(job.run_dir),
-                           stage=("import", "train", "eval", "render")[done])
+                done = sum(ref in ready for ref in stage_refs)
+                bar.update(task, completed=trained_iterations(job.run_dir), stage=STAGES[done])
     for status in recorded:
         if status["state"] == FAILED:
             console.print(f"{status['clip']}: failed in {status['stage']}: {status['error']}",
@@ -136,18 +137,17 @@ def _follow(ray, jobs: list[ClipJob], memory_gb: float, retries: int,
     return recorded
 
 
-def _first_failure(ray, stage_refs: list, ready: set) -> tuple[str, str] | None:
-    """(stage, error) of the first finished stage that raised, or None."""
-    for stage, ref in zip(("import", "train", "eval", "render"), stage_refs):
-        if ref not in ready:
-            return None
+def _clip_outcome(ray, stage_refs: list, retries: int) -> Path | StageFailure:
+    """What a clip's finished tasks came to: the first StageFailure, else the last stage's
+    result. Every task's result is fetched, so that Ray reports none as an unhandled error."""
+    outcomes = []
+    for stage, ref in zip(STAGES, stage_refs):
         try:
-            ray.get(ref)
-        except ray.exceptions.RayTaskError as err:
-            cause = err.cause if err.cause is not None else err
-            return stage, str(cause).strip().splitlines()[0] if str(cause).strip() \
-                else type(cause).__name__
-    return None
+            outcomes.append(ray.get(ref))
+        except ray.exceptions.RayError as err:  # the task's worker died, on every retry
+            outcomes.append(StageFailure(stage, retries + 1,
+                                         error_line(getattr(err, "cause", None) or err)))
+    return next((o for o in outcomes if isinstance(o, StageFailure)), outcomes[-1])
 
 
 def write_summary(jobs: list[ClipJob], out: Path) -> list[dict]:
@@ -195,13 +195,30 @@ def batch_command(
     fps: Annotated[float, typer.Option(help="Frames per second of the videos.")] = 15.0,
     geometry: Annotated[bool, typer.Option(help="Evaluate geometry against gt/ meshes "
                                                 "(phantoms).")] = True,
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", help="Change one setting of every clip's new run, as `surgsplat train --set` "
+                      "does (repeatable).")] = None,
 ) -> None:
-    """Import, train, evaluate and render many clips as Ray tasks; resumable."""
-    method_config(method)  # an unknown preset stops here, before any work
+    """Import, train, evaluate and render many clips as Ray tasks; resumable. Exit status 1
+    when a clip failed."""
     if iters is not None and iters <= 0:
         raise SurgsplatError(f"--iters must be positive, got {iters}")
-    jobs = clip_jobs(clips, out, method, iters, cpus_per_clip, fps, geometry)
-    console = Console()
+    jobs = clip_jobs(clips, out, method, iters, cpus_per_clip, fps, geometry, tuple(set_ or ()))
+    if jobs:
+        job_config(jobs[0])  # an unknown preset or a bad --set stops here, before any work
+    with run_lock(out, create=True):
+        failed = run_batch_folder(jobs, out, ray_address, num_cpus, memory_gb, retries,
+                                  retry_failed)
+    if failed:
+        raise typer.Exit(1)
+
+
+def run_batch_folder(jobs: list[ClipJob], out: Path, ray_address: str | None,
+                     num_cpus: int | None, memory_gb: float, retries: int,
+                     retry_failed: bool) -> int:
+    """Run the batch in OUT (held by this process), write its summary and print its final
+    line; returns how many clips are recorded failed."""
+    console = Console(soft_wrap=True)  # one line per message, whatever the terminal's width
     if retry_failed:
         for job in jobs:
             if (read_status(job) or {}).get("state") == FAILED:
@@ -215,3 +232,4 @@ def batch_command(
     states = [(read_status(job) or {}).get("state") for job in jobs]
     console.print(f"{states.count(DONE)} of {len(jobs)} clips done, {states.count(FAILED)} "
                   f"failed; summary: {out / SUMMARY_FILE}")
+    return states.count(FAILED)

@@ -8,6 +8,10 @@ and rendering rewrite their files. `surgsplat batch` runs them as Ray tasks
 A batch folder holds one folder per clip, OUT/<clip name>/, with scene/ (the imported scene,
 unless the clip already is a scene folder), run/ (the run folder, with metrics.json and
 videos/) and status.json (state "done" or "failed", the failing stage and its error).
+
+`attempt_stage` runs one stage with its retries and returns a failure as a value (StageFailure)
+instead of raising it, so that Ray never prints a task's traceback: the batch reports one line
+per failed clip.
 """
 
 from __future__ import annotations
@@ -15,25 +19,26 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.cli.eval_cmd import METRICS_FILE, evaluate_and_report
+from surgsplat.cli.main import os_error_line
 from surgsplat.cli.render_videos import write_run_videos
-from surgsplat.cli.train import train_run
+from surgsplat.cli.train import build_method_config, train_run
 from surgsplat.data.importer import ImportConfig, import_scene
 from surgsplat.data.layout import POSES_FILE
 from surgsplat.data.scene import load_scene
 from surgsplat.eval.run_metrics import EvalOptions
-from surgsplat.methods.registry import method_config
+from surgsplat.methods.config import MethodConfig
 from surgsplat.render.native import set_threads
 from surgsplat.train.run import load_trained_run, run_lock
 from surgsplat.train.trainer import CHECKPOINT, LOG_FILE
 
 STATUS_FILE = "status.json"
 DONE, FAILED = "done", "failed"
-STAGES = ("import", "train", "eval", "render")
 
 
 @dataclass(frozen=True)
@@ -47,6 +52,7 @@ class ClipJob:
     threads: int  # torch and native-kernel threads of every stage
     fps: float  # of the rendered videos
     geometry: bool = True  # evaluate geometry against gt/ meshes when the scene has them
+    settings: tuple[str, ...] = ()  # `--set KEY=VALUE` assignments for a new run
 
     @property
     def name(self) -> str:
@@ -59,6 +65,17 @@ class ClipJob:
     @property
     def status_path(self) -> Path:
         return self.folder / STATUS_FILE
+
+
+def job_config(job: ClipJob) -> MethodConfig:
+    """The method configuration of a new run of the clip: its preset with its settings applied
+    as `surgsplat train --set` applies them (SurgsplatError naming a bad one)."""
+    return build_method_config(job.method, None, list(job.settings))
+
+
+def planned_iterations(job: ClipJob) -> int:
+    """The iterations the clip's run trains for."""
+    return job.iterations if job.iterations is not None else job_config(job).train.iterations
 
 
 def is_scene_folder(path: Path) -> bool:
@@ -86,7 +103,7 @@ def train_stage(job: ClipJob, scene_dir: Path) -> Path:
     set_threads(job.threads)
     with run_lock(job.run_dir, create=True):
         resume = (job.run_dir / CHECKPOINT).is_file()
-        train_run(method_config(job.method), scene_dir, job.run_dir, resume, job.iterations)
+        train_run(job_config(job), scene_dir, job.run_dir, resume, job.iterations)
     return job.run_dir
 
 
@@ -106,22 +123,62 @@ def render_stage(job: ClipJob, run_dir: Path) -> Path:
     return run_dir
 
 
-def run_clip_here(job: ClipJob) -> dict:
+STAGE_FUNCTIONS: dict[str, Callable[[ClipJob, Path | None], Path]] = {
+    "import": lambda job, _: import_stage(job), "train": train_stage, "eval": eval_stage,
+    "render": render_stage}
+"""Each stage's function of the job and the previous stage's result, in order."""
+STAGES = tuple(STAGE_FUNCTIONS)
+
+
+@dataclass(frozen=True)
+class StageFailure:
+    """A stage that failed on every attempt."""
+
+    stage: str  # one of STAGES
+    attempts: int  # attempts made: 1 + retries
+    error: str  # one line: the last attempt's error
+
+
+def error_line(err: BaseException) -> str:
+    """One line saying what went wrong: `<path>: <what>` for an OSError, else the first line of
+    the message (the exception's type when it has none)."""
+    if isinstance(err, OSError):
+        return os_error_line(err)
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+def attempt_stage(stage: str, job: ClipJob, previous: Path | StageFailure | None,
+                  retries: int) -> Path | StageFailure:
+    """Run `stage` of `job` on the previous stage's result, up to 1 + `retries` times: its
+    result, or a StageFailure with the last attempt's error (returned, not raised). A
+    StageFailure of an earlier stage is passed on unchanged: the clip's later stages skip."""
+    if isinstance(previous, StageFailure):
+        return previous
+    for attempt in range(1, retries + 2):
+        try:
+            return STAGE_FUNCTIONS[stage](job, previous)
+        except Exception as err:  # recorded per clip; the batch goes on
+            failure = StageFailure(stage, attempt, error_line(err))
+    return failure
+
+
+def record_outcome(job: ClipJob, outcome: Path | StageFailure, seconds: float) -> dict:
+    """Record the clip's status from what its last stage returned; returns the status."""
+    if isinstance(outcome, StageFailure):
+        return record_status(job, FAILED, seconds, outcome.attempts, outcome.stage,
+                             outcome.error)
+    return record_status(job, DONE, seconds, 1)
+
+
+def run_clip_here(job: ClipJob, retries: int = 0) -> dict:
     """Every stage of `job` in this process, one after another; records and returns its
     status (a failure is recorded, not raised)."""
     started = time.perf_counter()
-    stage = STAGES[0]
-    try:
-        scene_dir = import_stage(job)
-        stage = "train"
-        run_dir = train_stage(job, scene_dir)
-        stage = "eval"
-        eval_stage(job, run_dir)
-        stage = "render"
-        render_stage(job, run_dir)
-    except Exception as err:  # recorded per clip; the batch goes on
-        return record_status(job, FAILED, time.perf_counter() - started, 1, stage, str(err))
-    return record_status(job, DONE, time.perf_counter() - started, 1)
+    outcome = None
+    for stage in STAGES:
+        outcome = attempt_stage(stage, job, outcome, retries)
+    return record_outcome(job, outcome, time.perf_counter() - started)
 
 
 @dataclass

@@ -35,6 +35,16 @@ def print_metrics(metrics: dict, console: Console) -> None:
     console.print(table)
 
 
+def print_coverage(metrics: dict, console: Console) -> None:
+    """One line naming the metric families that cover fewer than all test frames, if any."""
+    total = metrics["test_frames"]
+    fewer = [f"{family} {count}" for family, count in metrics["frames_covered"].items()
+             if count < total]
+    if fewer:
+        console.print(f"over fewer than the {total} test frames: {', '.join(fewer)} "
+                      f"(frames_covered in {METRICS_FILE})", highlight=False)
+
+
 def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
                         data: Path | None = None) -> dict:
     """Evaluate the run, write RUN/metrics.json, print the table; returns the metrics."""
@@ -51,6 +61,7 @@ def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
     write_text_atomic(Path(run_dir) / METRICS_FILE, json.dumps(metrics, indent=2) + "\n")
     console = Console()
     print_metrics(metrics, console)
+    print_coverage(metrics, console)
     console.print(f"written: {Path(run_dir) / METRICS_FILE}")
     return metrics
 

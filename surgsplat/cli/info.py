@@ -12,7 +12,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from surgsplat.data.scene import load_scene
+from surgsplat.data.scene import check_depth_scale, load_scene
 from surgsplat.data.summary import format_summary, summarise
 from surgsplat.errors import SurgsplatError
 from surgsplat.render.native import system_info
@@ -57,6 +57,8 @@ def info_command(
         return
     if scene_dir is None:
         raise SurgsplatError("info: give a scene folder, or --system")
+    if depth_scale is not None:
+        check_depth_scale(depth_scale, "--depth-scale")
     if as_json:
         summary = summarise(load_scene(scene_dir, depth_scale=depth_scale))
         print(json.dumps(asdict(summary), indent=2))

@@ -19,7 +19,7 @@ from surgsplat.methods.overrides import (apply_values, method_from_values, parse
 from surgsplat.methods.registry import PRESETS, method_config
 from surgsplat.train.checkpoint import previous_path
 from surgsplat.train.run import load_trained_run, read_run_config, read_run_scene, run_lock
-from surgsplat.train.trainer import CHECKPOINT, StepStats, Trainer
+from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, SCENE_FILE, StepStats, Trainer
 
 
 def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
@@ -82,6 +82,19 @@ def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
     return trainer
 
 
+def check_new_run_folder(out: Path) -> None:
+    """SurgsplatError unless `out` may receive a new run: absent, an empty folder, or a run
+    folder (its config.json and scene.txt present; one holding a checkpoint is then refused
+    with a hint to --resume). Any other folder holds a user's files that the run would
+    replace."""
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    if not ((out / CONFIG_FILE).is_file() and (out / SCENE_FILE).is_file()):
+        raise SurgsplatError(f"{out}: is not empty and is not a surgsplat run folder; choose a "
+                             "new or empty --out (a run writes config.json, scene.json, ... "
+                             "there, replacing files of the same name)")
+
+
 def build_method_config(method: str | None, config_file: Path | None,
                         assignments: list[str]) -> MethodConfig:
     """The preset `method` (default deform3dgs, or the one `config_file` names), with the file's
@@ -93,7 +106,7 @@ def build_method_config(method: str | None, config_file: Path | None,
                              f"{method!r}")
     config = method_from_values(values, method_config(name), str(config_file or "config"))
     for text in assignments:
-        config = apply_values(config, parse_assignment(text), where="--set")
+        config = method_from_values(parse_assignment(text), config, where="--set")
     return config
 
 
@@ -128,10 +141,11 @@ def train_command(
             if method is not None and method != saved.name:
                 raise SurgsplatError(f"{out} holds a {saved.name!r} run; --method {method} does "
                                      "not apply to it")
-            train_run(method_config(saved.name), data, out, resume, iters)
+            train_run(saved, data, out, resume, iters)
         return
     new_config = build_method_config(method, config, set_ or [])
     if data is None:
         raise SurgsplatError("--data is required unless --resume continues a run")
+    check_new_run_folder(out)
     with run_lock(out, create=True):
         train_run(new_config, data, out, resume, iters)

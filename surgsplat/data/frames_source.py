@@ -7,7 +7,6 @@ decoded with OpenCV (FFmpeg backend: mp4, avi, mov, mkv, ...).
 
 from __future__ import annotations
 
-import re
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from fnmatch import fnmatchcase
@@ -16,23 +15,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from surgsplat.data.layout import IMAGE_SUFFIXES
+from surgsplat.data.layout import (IMAGE_SUFFIXES, name_numbers,  # noqa: F401 (re-exported)
+                                   natural_key)
 from surgsplat.data.scene import native_stderr_to, read_image
 from surgsplat.errors import DataError
-
-_DIGITS = re.compile(r"(\d+)")
-
-
-def natural_key(path: Path) -> tuple:
-    """Sort key of a file name with its digit runs compared as numbers: frame_2 < frame_10."""
-    parts = _DIGITS.split(path.name)
-    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part.lower()) for part in parts)
-
-
-def name_numbers(path: Path) -> tuple[int, ...]:
-    """The numbers in a file's stem, in order: frame_561_endo_mask.png -> (561,)."""
-    return tuple(int(run) for run in _DIGITS.findall(path.stem))
-
 
 def list_frame_files(folder: Path, pattern: str | None, what: str = "frame") -> list[Path]:
     """Files of `folder` matching the glob `pattern` (default: any image file), sorted naturally."""

@@ -34,7 +34,7 @@ from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks
 from surgsplat.data.calibration import read_calibration
 from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
 from surgsplat.data.frames_source import FrameSource, list_frame_files
-from surgsplat.data.layout import Intrinsics, SceneMeta, SceneWriter, frame_stem
+from surgsplat.data.layout import Intrinsics, SceneMeta, SceneWriter, frame_stem, write_image
 from surgsplat.data.shading_depth import ShadingDepthConfig, shading_depth
 from surgsplat.data.stereo import StereoConfig, disparity_to_depth, stereo_disparity
 from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
@@ -349,7 +349,7 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
             if config.disparity_only:
                 stored = np.rint(disparity * DISPARITY_STEPS).astype(np.uint16)
                 disparity_path = out_dir / DISPARITY_DIR / f"{frame_stem(writer.count)}.png"
-                cv2.imwrite(str(disparity_path), stored)
+                write_image(disparity_path, stored)
             else:
                 disparity[disparity < MIN_DEPTH_DISPARITY] = 0.0
                 depth = disparity_to_depth(disparity, fx, config.baseline)

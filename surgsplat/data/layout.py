@@ -12,7 +12,8 @@ A scene folder holds::
     scene.json    optional; SceneMeta (depth unit and PNG depth scale, full intrinsics,
                   provenance)
 
-Files of the three folders are paired by sorted name; their counts must agree. Scenes imported
+Files of the three folders are paired in natural order of their names (frame_2 before
+frame_10, see `natural_key`); their counts must agree. Scenes imported
 before fov_mask.png existed hold the border in masks/; they load as before (border = tool).
 
 Cameras are OpenCV pinholes (x right, y down, z forward); "depth" is the z-coordinate in the
@@ -42,6 +43,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -134,8 +136,10 @@ class SceneMeta:
             raise DataError(path, "expected a JSON object with depth_unit / depth_scale")
         known = {k: raw[k] for k in ("depth_unit", "depth_scale", "source", "extra") if k in raw}
         meta = SceneMeta(**known)
-        if not (isinstance(meta.depth_scale, (int, float)) and meta.depth_scale > 0):
-            raise DataError(path, f"depth_scale must be a positive number, got {meta.depth_scale!r}")
+        if not (isinstance(meta.depth_scale, (int, float)) and math.isfinite(meta.depth_scale)
+                and meta.depth_scale > 0):
+            raise DataError(path, f"depth_scale must be a positive finite number, got "
+                                  f"{meta.depth_scale!r}")
         if raw.get("intrinsics") is not None:
             meta.intrinsics = _read_intrinsics(path, raw["intrinsics"])
         return meta
@@ -168,9 +172,38 @@ def frame_stem(index: int) -> str:
     return f"{index:06d}"
 
 
+_DIGITS = re.compile(r"(\d+)")
+
+
+def natural_key(path: Path) -> tuple:
+    """Sort key of a file name with its digit runs compared as numbers: frame_2 < frame_10."""
+    parts = _DIGITS.split(path.name)
+    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part.lower()) for part in parts)
+
+
+def name_numbers(path: Path) -> tuple[int, ...]:
+    """The numbers in a file's stem, in order: frame_561_endo_mask.png -> (561,)."""
+    return tuple(int(run) for run in _DIGITS.findall(path.stem))
+
+
 def list_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
-    """Files of `folder` with one of `suffixes` (case-insensitive), sorted by name."""
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes)
+    """Files of `folder` with one of `suffixes` (case-insensitive), in natural order
+    (`natural_key`)."""
+    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes),
+                  key=natural_key)
+
+
+def write_image(path: Path, pixels: np.ndarray) -> None:
+    """Write `pixels` (as cv2.imwrite takes them: BGR order, uint8 or uint16) to `path`, encoded
+    by its suffix. Unlike cv2.imwrite, which reports success on a full disk, a failed write
+    raises an OSError naming `path`."""
+    ok, encoded = cv2.imencode(path.suffix, pixels)
+    if not ok:
+        raise ValueError(f"{path}: cannot encode a {pixels.dtype} {pixels.shape} image")
+    try:
+        path.write_bytes(encoded.tobytes())
+    except OSError as err:
+        raise OSError(err.errno, err.strerror or str(err), str(path)) from err
 
 
 def world_to_camera_from_llff(blocks: np.ndarray) -> np.ndarray:
@@ -245,12 +278,12 @@ class SceneWriter:
         elif self.size != (height, width):
             raise ValueError(f"frame {self.count} is {height}x{width}, earlier frames {self.size}")
         stem = frame_stem(self.count)
-        cv2.imwrite(str(self.root / IMAGES_DIR / f"{stem}.png"), image[..., ::-1])
+        write_image(self.root / IMAGES_DIR / f"{stem}.png", image[..., ::-1])
         if depth is not None:
             self._write_depth(stem, np.asarray(depth, dtype=np.float64))
         if tool_mask is not None:
             mask = np.where(np.asarray(tool_mask, dtype=bool), TOOL_VALUE, 0).astype(np.uint8)
-            cv2.imwrite(str(self.root / MASKS_DIR / f"{stem}.png"), mask)
+            write_image(self.root / MASKS_DIR / f"{stem}.png", mask)
         self.poses.append(np.eye(4) if world_to_camera is None
                           else np.asarray(world_to_camera, dtype=np.float64))
         self.count += 1
@@ -264,7 +297,7 @@ class SceneWriter:
         if stored.max(initial=0) > 65535:
             raise ValueError(f"depth {depth.max():.1f} exceeds 16-bit PNG range at scale "
                              f"{self.meta.depth_scale}")
-        cv2.imwrite(str(self.root / DEPTH_DIR / f"{stem}.png"), stored.astype(np.uint16))
+        write_image(self.root / DEPTH_DIR / f"{stem}.png", stored.astype(np.uint16))
         valid = depth[depth > 0]
         if valid.size:
             self.depth_range = [min(self.depth_range[0], float(valid.min())),
@@ -287,8 +320,7 @@ class SceneWriter:
         if self.fov is not None:
             if self.fov.shape != self.size:
                 raise ValueError(f"field of view mask is {self.fov.shape}, frames {self.size}")
-            cv2.imwrite(str(self.root / FOV_FILE),
-                        np.where(self.fov, INSIDE_VALUE, 0).astype(np.uint8))
+            write_image(self.root / FOV_FILE, np.where(self.fov, INSIDE_VALUE, 0).astype(np.uint8))
         np.save(self.root / POSES_FILE,
                 poses_bounds(np.stack(self.poses), height, width, self.focal, near, far))
         self.meta.write(self.root / META_FILE)

@@ -32,7 +32,7 @@ from surgsplat.data.layout import (DEPTH_DIR, DEPTH_SUFFIXES, FOV_FILE, IMAGE_SU
                                    IMAGES_DIR, INSIDE_VALUE, MASKS_DIR, META_FILE, POSES_FILE,
                                    TOOL_VALUE, Intrinsics, SceneMeta, list_files,
                                    world_to_camera_from_llff)
-from surgsplat.errors import DataError
+from surgsplat.errors import DataError, SurgsplatError
 
 TEST_EVERY = 8
 """Test frames are those with index % TEST_EVERY == TEST_OFFSET (the EndoNeRF-family split)."""
@@ -476,6 +476,15 @@ def frame_pixels(image: np.ndarray, depth: np.ndarray | None, tool: np.ndarray |
                        else torch.from_numpy(tool), fov=fov)
 
 
+def check_depth_scale(depth_scale: float, name: str) -> None:
+    """SurgsplatError saying that `name` (the option or setting given) must be a positive finite
+    number, unless `depth_scale` is one."""
+    if not (isinstance(depth_scale, (int, float)) and math.isfinite(depth_scale)
+            and depth_scale > 0):
+        raise SurgsplatError(f"{name} must be a positive finite number (scene units per stored "
+                             f"integer of PNG depth), got {depth_scale!r}")
+
+
 def load_scene(root: str | Path, depth_scale: float | None = None,
                cache_bytes: int = CACHE_BYTES) -> Scene:
     """Load and validate a scene folder.
@@ -498,8 +507,7 @@ def load_scene(root: str | Path, depth_scale: float | None = None,
                               f"({IMAGES_DIR}/, optional {DEPTH_DIR}/ and {MASKS_DIR}/, {POSES_FILE})")
     meta = SceneMeta.read(root / META_FILE) if (root / META_FILE).is_file() else SceneMeta()
     if depth_scale is not None:
-        if depth_scale <= 0:
-            raise DataError(root, f"depth scale must be positive, got {depth_scale:g}")
+        check_depth_scale(depth_scale, "depth scale")
         meta.depth_scale = depth_scale
     image_files = _folder_files(root, IMAGES_DIR, IMAGE_SUFFIXES, required=True)
     depth_files = _folder_files(root, DEPTH_DIR, DEPTH_SUFFIXES, required=False)

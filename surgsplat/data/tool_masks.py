@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import torch
 
-from surgsplat.data.frames_source import name_numbers
+from surgsplat.data.layout import name_numbers
 from surgsplat.data.scene import Scene, decode_image
 from surgsplat.errors import DataError, SurgsplatError
 

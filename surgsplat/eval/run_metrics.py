@@ -17,6 +17,7 @@ scored (see decomposition.py).
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -85,39 +86,46 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     meshes = MeshExtractor(run.model, background=background) if options.geometry else None
     decomposition = DecompositionScores()
     summed: dict[str, float] = {}  # diagnostics summed over the test frames (counts stay int)
+    covered: Counter[str] = Counter()  # test frames scored, per metric family
     for frame in frames:
         started = time.perf_counter()
         out = render_frame(run.model, frame.camera, FrameTime(frame.index, frame.time), background)
         render_seconds += time.perf_counter() - started
         pred = out.rgb.clamp(0, 1)
-        row = image_row(pred, frame.image, frame.tissue, lpips_model)
+        row: dict[str, float] = {}
+        add_family(row, covered, "image", image_row(pred, frame.image, frame.tissue, lpips_model))
         if frame.depth is not None:
             valid = frame.tissue & (frame.depth > 0)
             if valid.any():
-                row["depth_rmse"] = depth_rmse(out.depth, frame.depth, frame.tissue)
-        row.update(specular_row(pred, frame, scene.root))
+                add_family(row, covered, "depth",
+                           {"depth_rmse": depth_rmse(out.depth, frame.depth, frame.tissue)})
+        add_family(row, covered, "specular", specular_row(pred, frame, scene.root))
         hidden = out
         if run.model.separates_tool:
             hidden = render_frame(run.model, frame.camera,
                                   FrameTime(frame.index, frame.time, tissue_only=True), background)
-        row.update(occluded_row(hidden.rgb.clamp(0, 1), hidden.depth, frame, scene.root))
+        add_family(row, covered, "occluded",
+                   occluded_row(hidden.rgb.clamp(0, 1), hidden.depth, frame, scene.root))
         diagnostics = run.model.diagnostics(FrameTime(frame.index, frame.time))
-        row.update(diagnostics.averaged)
+        add_family(row, covered, "diagnostics", diagnostics.averaged)
         for key, value in diagnostics.summed.items():
             summed[key] = summed.get(key, 0) + value
         decomposition.add(frame, out.extras, out.rgb, scene.root)
         gt_mesh = mesh_path(scene.root, frame.index)
         if options.geometry and gt_mesh.is_file():
             gt_vertices, gt_faces = read_ply_mesh(gt_mesh)
-            row.update(frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
+            add_family(row, covered, "geometry",
+                       frame_geometry(out.depth, out.alpha, frame.tissue, frame.camera,
                                       gt_vertices, gt_faces, seed=frame.index))
-            row.update(mesh_geometry(meshes.frame_mesh(frame), frame, gt_vertices, gt_faces))
+            add_family(row, covered, "mesh_geometry",
+                       mesh_geometry(meshes.frame_mesh(frame), frame, gt_vertices, gt_faces))
             state = run.model.state_at(FrameTime(frame.index, frame.time))
             means, opacities = state.means.detach(), state.opacities.detach()
             tissue = tissue_members(run.model.gaussians.params)
             if tissue is not None:
                 means, opacities = means[tissue], opacities[tissue]
-            row.update(gaussian_geometry(means, opacities, frame, gt_vertices, gt_faces,
+            add_family(row, covered, "gaussians_p2s",
+                       gaussian_geometry(means, opacities, frame, gt_vertices, gt_faces,
                                          seed=frame.index))
         gt_normals = normals_path(scene.root, frame.index)
         if options.geometry and gt_normals.is_file():
@@ -129,7 +137,10 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         if progress:
             progress(len(rows["psnr_tissue"]), len(frames))
 
-    metrics: dict = {"test_frames": len(frames), "iteration": run.iteration}
+    covered.update(normals=len(angles), decomposition=len(decomposition.reflectance))
+    metrics: dict = {"test_frames": len(frames), "iteration": run.iteration,
+                     "frames_covered": {family: count for family, count in covered.items()
+                                        if count}}
     for key, values in rows.items():
         metrics[key] = float(np.mean(values))
     metrics.update(summed)
@@ -192,11 +203,26 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
                         "the frames estimated from their own observation)",
         "normal_error_deg": "angle between rendered (or rendered-depth) and gt normals, "
                             "orientation-free, pooled over the tissue pixels of all test frames",
+        "frames_covered": "test frames each metric family averages over, fewer than test_frames "
+                          "where the scene's ground truth (or what a metric needs: depth, tool "
+                          "pixels, highlights) covers fewer: image (psnr_*, ssim*, lpips), "
+                          "depth (depth_rmse), specular, occluded (*_occluded), diagnostics "
+                          "(the components' averages), geometry (chamfer_mm, p2s_*, fscore_1mm), "
+                          "mesh_geometry (mesh_*), gaussians_p2s, normals, decomposition",
         "fps": "rendering the test frames, this machine",
         "peak_rss_mb": "peak resident memory of the training process",
         **DECOMPOSITION_CONVENTIONS,
     }
     return metrics
+
+
+def add_family(row: dict[str, float], covered: Counter[str], family: str,
+               values: dict[str, float]) -> None:
+    """Add one frame's `values` of metric `family` to its `row`; the frame counts as covered by
+    the family when there are any."""
+    row.update(values)
+    if values:
+        covered[family] += 1
 
 
 def articulation_row(run: TrainedRun) -> dict:

@@ -1,6 +1,8 @@
 """One self-contained HTML report of one or more runs: metrics with their conventions, training
 curves (matplotlib, inlined as PNG), and per test frame the ground truth, the render, an error
-heat map, the depth and the normals. With several runs: a comparison table and overlaid curves.
+heat map, the depth and the normals. With several runs: a comparison table (with each run's
+scene) and overlaid curves; runs are named by their folders relative to the folder holding them
+all (a/run and b/run for DIR/a/run and DIR/b/run, as `batch` writes them).
 
 Everything is inlined (base64 images, CSS in the page, no script), so the file opens offline and
 can be mailed or attached to a paper's supplement.
@@ -12,6 +14,7 @@ import base64
 import html
 import io
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,9 +30,9 @@ from surgsplat.export.video import colorize_depth, colorize_normals, to_uint8
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun, load_trained_run
+from surgsplat.train.trainer import LOG_FILE, read_log
 
 METRICS_FILE = "metrics.json"
-LOG_FILE = "train_log.jsonl"
 COMPARED = ("psnr_tissue", "psnr_zeroed", "ssim", "lpips", "depth_rmse_mm",
             "normal_error_deg_median", "chamfer_mm", "p2s_median_mm", "fscore_1mm",
             "train_seconds", "num_gaussians", "fps", "peak_rss_mb")
@@ -41,31 +44,45 @@ ERROR_RANGE = 0.1
 class RunSummary:
     """What the report shows of one run."""
 
-    name: str
+    name: str  # the run folder relative to the folder holding every run of the report
     method: str
+    scene: Path  # the scene folder the run was trained on
     metrics: dict
-    log: list[dict]  # train_log.jsonl entries
+    log: list[dict]  # train_log.jsonl entries (see read_log)
     frames: list[tuple[int, np.ndarray]]  # (frame index, uint8 RGB strip [H, 5 W, 3])
 
 
-def summarise_run(run_dir: Path, max_frames: int) -> RunSummary:
-    """Load a run, its metrics (evaluated now when RUN/metrics.json is missing), its training
-    log and the image strips of up to `max_frames` test frames."""
+def short_names(paths: list[Path]) -> list[str]:
+    """Each path relative to the folder that holds them all: a/run and b/run for DIR/a/run and
+    DIR/b/run; a single path's own name."""
+    resolved = [Path(path).resolve() for path in paths]
+    common = Path(os.path.commonpath([path.parent for path in resolved]))
+    return [path.relative_to(common).as_posix() for path in resolved]
+
+
+def read_metrics(path: Path) -> dict:
+    """RUN/metrics.json as written by `surgsplat eval`; DataError naming it when it is not a
+    JSON object."""
+    try:
+        metrics = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise DataError(path, f"is not valid JSON ({err})") from err
+    if not isinstance(metrics, dict):
+        raise DataError(path, "expected a JSON object of metrics, as `surgsplat eval` writes")
+    return metrics
+
+
+def summarise_run(run_dir: Path, name: str, max_frames: int) -> RunSummary:
+    """Load a run (shown as `name`), its metrics (evaluated now when RUN/metrics.json is
+    missing), its training log and the image strips of up to `max_frames` test frames."""
     run = load_trained_run(run_dir)
     metrics_path = Path(run_dir) / METRICS_FILE
-    if metrics_path.is_file():
-        try:
-            metrics = json.loads(metrics_path.read_text())
-        except json.JSONDecodeError as err:
-            raise DataError(metrics_path, f"is not valid JSON ({err})") from err
-    else:
-        metrics = evaluate_run(run, EvalOptions(geometry=False))
-    log_path = Path(run_dir) / LOG_FILE
-    log = [json.loads(line) for line in log_path.read_text().splitlines() if line.strip()] \
-        if log_path.is_file() else []
+    metrics = read_metrics(metrics_path) if metrics_path.is_file() \
+        else evaluate_run(run, EvalOptions(geometry=False))
+    log = read_log(Path(run_dir) / LOG_FILE)
     frames = [(frame.index, frame_strip(run, frame)) for frame in run.scene.test_frames[:max_frames]]
-    return RunSummary(name=Path(run_dir).name, method=run.config.name, metrics=metrics, log=log,
-                      frames=frames)
+    return RunSummary(name=name, method=run.config.name, scene=run.scene.root, metrics=metrics,
+                      log=log, frames=frames)
 
 
 def frame_strip(run: TrainedRun, frame) -> np.ndarray:
@@ -92,6 +109,25 @@ def png_data_uri(image: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(encoded.tobytes()).decode("ascii")
 
 
+def logged(log: list[dict], key: str, term: bool = False) -> list[float]:
+    """The value of `key` (of a loss term under "terms" when `term`) in each log entry; NaN
+    where an entry has no number there (a damaged line), so every curve has one point per
+    entry."""
+    values = []
+    for entry in log:
+        holder = entry.get("terms") if term else entry
+        value = holder.get(key) if isinstance(holder, dict) else None
+        numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+        values.append(float(value) if numeric else float("nan"))
+    return values
+
+
+def term_names(log: list[dict]) -> list[str]:
+    """The loss terms logged in any entry, sorted."""
+    return sorted({name for entry in log if isinstance(entry.get("terms"), dict)
+                   for name in entry["terms"]})
+
+
 def curves_figure(runs: list[RunSummary]) -> str:
     """Training curves of every run, overlaid: loss and its terms, PSNR against iterations and
     seconds, Gaussian count. Returns a PNG data URI."""
@@ -107,16 +143,16 @@ def curves_figure(runs: list[RunSummary]) -> str:
     for run in runs:
         if not run.log:
             continue
-        iterations = [entry["iteration"] for entry in run.log]
-        seconds = [entry["seconds"] for entry in run.log]
-        line = axes[0, 0].plot(iterations, [e["loss"] for e in run.log], label=f"{run.name}: loss")
-        for term in sorted({t for entry in run.log for t in entry.get("terms", {})}):
-            axes[0, 0].plot(iterations, [e.get("terms", {}).get(term, np.nan) for e in run.log],
-                            linestyle="--", linewidth=0.8, label=f"{run.name}: {term}")
+        iterations = logged(run.log, "iteration")
+        psnr = logged(run.log, "psnr")
+        line = axes[0, 0].plot(iterations, logged(run.log, "loss"), label=f"{run.name}: loss")
+        for term in term_names(run.log):
+            axes[0, 0].plot(iterations, logged(run.log, term, term=True), linestyle="--",
+                            linewidth=0.8, label=f"{run.name}: {term}")
         colour = line[0].get_color()
-        axes[0, 1].plot(iterations, [e["psnr"] for e in run.log], color=colour, label=run.name)
-        axes[1, 0].plot(seconds, [e["psnr"] for e in run.log], color=colour, label=run.name)
-        axes[1, 1].plot(iterations, [e["num_gaussians"] for e in run.log], color=colour,
+        axes[0, 1].plot(iterations, psnr, color=colour, label=run.name)
+        axes[1, 0].plot(logged(run.log, "seconds"), psnr, color=colour, label=run.name)
+        axes[1, 1].plot(iterations, logged(run.log, "num_gaussians"), color=colour,
                         label=run.name)
     titles = (("loss and its terms (unweighted)", "iteration", "value"),
               ("training-frame PSNR over tissue", "iteration", "dB"),
@@ -167,13 +203,17 @@ def metrics_table(run: RunSummary) -> str:
 
 
 def comparison_table(runs: list[RunSummary]) -> str:
+    """One row per run, with its scene (named like the runs, relative to the folder holding
+    every scene), its method and the COMPARED metrics; runs of one scene are adjacent."""
     keys = [key for key in COMPARED if any(key in run.metrics for run in runs)]
     header = "".join(f"<th>{html.escape(key)}</th>" for key in keys)
+    scenes = short_names([run.scene for run in runs])
     rows = "".join(
-        f"<tr><td>{html.escape(run.name)}</td><td>{html.escape(run.method)}</td>"
+        f"<tr><td>{html.escape(run.name)}</td><td>{html.escape(scene)}</td>"
+        f"<td>{html.escape(run.method)}</td>"
         + "".join(f"<td class=num>{_cell(run.metrics.get(key))}</td>" for key in keys) + "</tr>"
-        for run in runs)
-    return f"<table><tr><th>run</th><th>method</th>{header}</tr>{rows}</table>"
+        for scene, run in sorted(zip(scenes, runs), key=lambda pair: pair[0]))
+    return f"<table><tr><th>run</th><th>scene</th><th>method</th>{header}</tr>{rows}</table>"
 
 
 STYLE = """body{font-family:sans-serif;margin:2em;max-width:1400px}
@@ -187,7 +227,8 @@ def write_report(run_dirs: list[Path], out: Path, max_frames: int = 4) -> Path:
     """Write the HTML report of `run_dirs` to `out` (atomically); returns `out`."""
     if not run_dirs:
         raise SurgsplatError("report: name at least one run folder")
-    runs = [summarise_run(Path(run_dir), max_frames) for run_dir in run_dirs]
+    runs = [summarise_run(Path(run_dir), name, max_frames)
+            for run_dir, name in zip(run_dirs, short_names(run_dirs))]
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>surgsplat report</title>"
              f"<style>{STYLE}</style></head><body><h1>surgsplat report</h1>"]
     if len(runs) > 1:

@@ -17,6 +17,7 @@ camera axes (x right, y down, z forward), which is surgsplat's too.
 from __future__ import annotations
 
 import math
+import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -80,8 +81,27 @@ def matrix_to_wxyz(rotation: np.ndarray) -> np.ndarray:
     return np.array([w, x, y, z])
 
 
+def check_can_serve(host: str, port: int) -> None:
+    """SurgsplatError naming `host:port` unless a server can listen there now (every address
+    `host` resolves to, bound as the viewer's server binds them). viser would otherwise move on
+    to the next free port when `port` is taken, and wait forever when `host` cannot be bound."""
+    try:
+        addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
+                                       flags=socket.AI_PASSIVE)
+        for family, kind, protocol, _, address in addresses:
+            with socket.socket(family, kind, protocol) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                if family == socket.AF_INET6:
+                    probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+                probe.bind(address)
+    except OSError as err:  # socket.gaierror too: a host name that does not resolve
+        raise SurgsplatError(f"--host {host} --port {port}: cannot serve there "
+                             f"({err.strerror or err}); choose another --port or --host") from None
+
+
 class RunViewer:
-    """A viser server showing `run`; see the module docstring."""
+    """A viser server showing `run` on `host`:`port` (SurgsplatError when it cannot listen
+    there; see check_can_serve); see the module docstring."""
 
     def __init__(self, run: TrainedRun, host: str = "127.0.0.1", port: int = 8080,
                  height: int | None = None, moving_scale: float = 0.5, fps: float = 10.0):
@@ -96,6 +116,7 @@ class RunViewer:
         self.last: ViewerFrame | None = None
         self.frames_sent = 0
         self._idle_timers: dict[int, threading.Timer] = {}
+        check_can_serve(host, port)
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         count = len(run.scene.frames)
         gui = self.server.gui

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -45,26 +45,26 @@ LOG_WIDTHS = "basis_log_widths"
 class GaussianBasisConfig(ComponentConfig, kind="gaussian_basis"):
     """Basis size, initial width and learning rates of a Gaussian-basis field."""
 
-    num_basis: int = 8
+    num_basis: int = field(default=8, metadata={"range": "[2, inf)"})
     """Number B of Gaussian basis functions per Gaussian (at least 2). Eight fit the smooth
     tissue motion of a clip of a few seconds; more let each Gaussian's curve chase noise (on the
     full phantom, 16 cost about 1 dB of test PSNR)."""
-    long_clip_frames_per_basis: int = 250
+    long_clip_frames_per_basis: int = field(default=250, metadata={"range": "[1, inf)"})
     """Clips longer than this x num_basis frames get one basis function per this many frames.
     Every basis function costs each Gaussian D + 2 parameters, hence the sparse growth."""
-    max_basis: int = 16
+    max_basis: int = field(default=16, metadata={"range": "[2, inf)"})
     """Upper limit of the basis functions of a long clip (per-Gaussian memory and time grow
     linearly with it)."""
-    init_width: float = 1.0
+    init_width: float = field(default=1.0, metadata={"range": "(0, inf)"})
     """Initial width sigma of every basis function, in units of the spacing of the centres."""
-    weights_lr: float = 2.5e-4
+    weights_lr: float = field(default=2.5e-4, metadata={"range": "[0, inf)"})
     """Adam learning rate of the basis amplitudes. Lower than EndoPlanar's 1.6e-3: with a few
     thousand CPU iterations each Gaussian sees every frame only a few dozen times, and the larger
     rate left the independent per-Gaussian curves jittering (full phantom, 600 iterations: test
     PSNR 26.7 dB at 1.6e-3, 31.5 at 5e-4, 32.9 at 2.5e-4, 32.2 at 1.5e-4, 30.4 at 5e-5)."""
-    centres_lr: float = 1.6e-3
+    centres_lr: float = field(default=1.6e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the basis centres (time units; the clip spans [0, 1])."""
-    log_widths_lr: float = 1e-2
+    log_widths_lr: float = field(default=1e-2, metadata={"range": "[0, inf)"})
     """Adam learning rate of the basis log-widths."""
     deform_color: bool = False
     """Also deform the SH DC colour."""

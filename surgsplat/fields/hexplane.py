@@ -18,7 +18,7 @@ field starts as the identity (all offsets zero).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
@@ -38,36 +38,36 @@ SPATIAL_AXES = ((0, 1), (0, 2), (1, 2))
 class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     """Resolutions, MLP size and learning rates of a HexPlane field."""
 
-    base_resolution: int = 32
+    base_resolution: int = field(default=32, metadata={"range": "[2, inf)"})
     """Spatial resolution (cells per axis) of the coarsest scale."""
-    multires: tuple[int, ...] = (1, 2)
+    multires: tuple[int, ...] = field(default=(1, 2), metadata={"range": "[1, inf)"})
     """Spatial resolution multipliers, one feature scale each."""
-    max_resolution: int = 64
+    max_resolution: int = field(default=64, metadata={"range": "[2, 1024]"})
     """Upper limit of any scale's spatial resolution."""
-    time_resolution: int = 25
+    time_resolution: int = field(default=25, metadata={"range": "[2, inf)"})
     """Cells along time of the spatio-temporal planes for a short clip (at most half the frame
     count)."""
-    long_clip_frames_per_cell: int = 10
+    long_clip_frames_per_cell: int = field(default=10, metadata={"range": "[1, inf)"})
     """Clips longer than 10 x time_resolution frames get one time cell per this many frames
     (the planes' memory grows with it; the cost per Gaussian does not)."""
-    max_time_resolution: int = 300
+    max_time_resolution: int = field(default=300, metadata={"range": "[2, inf)"})
     """Upper limit of the time cells of a long clip."""
-    feature_dim: int = 32
+    feature_dim: int = field(default=32, metadata={"range": "[1, inf)"})
     """Feature channels C of every plane."""
-    mlp_width: int = 64
+    mlp_width: int = field(default=64, metadata={"range": "[1, inf)"})
     """Width of the MLP's hidden layers."""
-    mlp_depth: int = 1
+    mlp_depth: int = field(default=1, metadata={"range": "[1, inf)"})
     """Number of hidden layers of the MLP (each linear + ReLU)."""
-    grid_lr: float = 1.6e-3
+    grid_lr: float = field(default=1.6e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the feature planes."""
-    mlp_lr: float = 1.6e-4
+    mlp_lr: float = field(default=1.6e-4, metadata={"range": "[0, inf)"})
     """Adam learning rate of the MLP."""
     deform_color: bool = False
     """Also deform the SH DC colour."""
-    volume_samples: int = 0
+    volume_samples: int = field(default=0, metadata={"range": "[0, inf)"})
     """Gaussians sampled per step for the volume-preservation loss "volume" (PhysioSplat Eq. 6);
     0 = the field offers no such loss."""
-    volume_step_cells: float = 0.5
+    volume_step_cells: float = field(default=0.5, metadata={"range": "(0, inf)"})
     """Central-difference step of that loss, in cells of the finest spatial plane."""
 
     def resolve(self, scene: SceneInfo) -> "HexPlaneConfig":

@@ -41,7 +41,7 @@ Sign convention: f > 0 in front of the surface (the camera side, free space), f 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
@@ -65,34 +65,34 @@ TETRAHEDRON = torch.tensor([[1.0, -1.0, -1.0], [-1.0, -1.0, 1.0], [-1.0, 1.0, -1
 class SDFConfig(ComponentConfig, kind="sdf"):
     """Size, schedule and coupling of the signed distance field."""
 
-    resolutions: tuple[int, ...] = (16, 32, 64)
+    resolutions: tuple[int, ...] = field(default=(16, 32, 64), metadata={"range": "[2, 512]"})
     """Cells per axis of each dense feature grid over the canonical box."""
-    feature_dim: int = 2
+    feature_dim: int = field(default=2, metadata={"range": "[1, inf)"})
     """Feature channels of every grid."""
-    mlp_width: int = 32
+    mlp_width: int = field(default=32, metadata={"range": "[1, inf)"})
     """Width of the MLP's two hidden layers."""
-    grid_lr: float = 1e-2
+    grid_lr: float = field(default=1e-2, metadata={"range": "(0, inf)"})
     """Adam learning rate of the feature grids."""
-    mlp_lr: float = 1e-3
+    mlp_lr: float = field(default=1e-3, metadata={"range": "(0, inf)"})
     """Adam learning rate of the MLP."""
-    lr_decay: float = 0.01
+    lr_decay: float = field(default=0.01, metadata={"range": "(0, 1]"})
     """Final over initial learning rate of the grids and the MLP (exponential decay over the run,
     as the Gaussians' means decay), so that the zero level settles with the centres."""
-    beta_lr: float = 1e-2
+    beta_lr: float = field(default=1e-2, metadata={"range": "[0, inf)"})
     """Adam learning rate of log(beta); 0 keeps beta fixed at its initial value."""
-    bell_width: float = 0.02
+    bell_width: float = field(default=0.02, metadata={"range": "(0, inf)"})
     """Initial 1 / beta as a fraction of the scene extent (a Gaussian this far from the surface
     keeps 4 s (1 - s) = 0.79 of its opacity)."""
-    samples_per_step: int = 2048
+    samples_per_step: int = field(default=2048, metadata={"range": "[1, inf)"})
     """Gaussians drawn per step for the Eikonal, projection, orientation and SDA losses."""
-    box_margin: float = 0.15
+    box_margin: float = field(default=0.15, metadata={"range": "[0, inf)"})
     """Margin added on every side of the initial points' bounding box, as a fraction of its size
     (at least `fit_band` of the extent)."""
-    gradient_step: float = 0.5
+    gradient_step: float = field(default=0.5, metadata={"range": "(0, inf)"})
     """Finite-difference step, in cells of the finest grid."""
-    fit_steps: int = 200
+    fit_steps: int = field(default=200, metadata={"range": "[0, inf)"})
     """Adam steps fitting the field to the initial points along the first camera's rays."""
-    fit_band: float = 0.05
+    fit_band: float = field(default=0.05, metadata={"range": "(0, inf)"})
     """Half-width of the band around the initial points the fit samples, fraction of the extent."""
 
     def build(self) -> "SDFField":

@@ -20,7 +20,7 @@ field; without one, every Gaussian is tissue and there is no collision.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -34,17 +34,17 @@ from surgsplat.model.physics import (PHANTOM_EXTENT_MM, NeighbourGraph, arap_str
 class BiomechanicsConfig(ComponentConfig, kind="biomechanics"):
     """Strain and collision energies of the tissue Gaussians."""
 
-    neighbours: int = 16
+    neighbours: int = field(default=16, metadata={"range": "[1, inf)"})
     """k of the canonical kNN graph (the paper's K = 16); >= 1."""
-    anchors: int = 4096
+    anchors: int = field(default=4096, metadata={"range": "[1, inf)"})
     """Tissue Gaussians whose strain is evaluated per step (a random subset bounds the cost;
     the term is their mean times the tissue count); >= 1."""
-    rebuild_every: int = 100
+    rebuild_every: int = field(default=100, metadata={"range": "[1, inf)"})
     """Also rebuild the kNN graph every this many steps; >= 1."""
-    collision_margin: float = 2.0 / PHANTOM_EXTENT_MM
+    collision_margin: float = field(default=2.0 / PHANTOM_EXTENT_MM, metadata={"range": "[0, 1)"})
     """Epsilon of Eq. 5 as a fraction of the scene extent, in [0, 1) (the paper's 2 mm on the
     phantom: 0.0259)."""
-    min_hull_opacity: float = 0.1
+    min_hull_opacity: float = field(default=0.1, metadata={"range": "[0, 1]"})
     """Tool Gaussians at least this opaque span the tool hull; in [0, 1]."""
 
     def build(self) -> "Biomechanics":

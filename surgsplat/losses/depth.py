@@ -11,7 +11,7 @@ plane depth).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import torch
@@ -85,7 +85,7 @@ class DepthLossConfig(ComponentConfig, kind="depth_loss"):
     form: Literal["l1", "inverse_l1", "scale_invariant"] = "l1"
     """L1 on depth, L1 on inverse depth (EndoPlanar Eq. 9), or scale-invariant L1 on log depth
     (for relative depth such as `surgsplat import --depth shading`)."""
-    occlusion_gamma: float = 0.0
+    occlusion_gamma: float = field(default=0.0, metadata={"range": "[0, inf)"})
     """gamma of Endo-GSG's occlusion importance map weighting each pixel (Eq. 11-12); 0 = every
     tissue pixel weighs 1."""
 

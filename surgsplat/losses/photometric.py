@@ -9,7 +9,7 @@ images, whatever the tool pixels held.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -84,9 +84,9 @@ def photometric_loss(pred: Tensor, gt: Tensor, mask: Tensor, lambda_dssim: float
 class PhotometricConfig(ComponentConfig, kind="photometric_loss"):
     """The photometric loss of a method."""
 
-    lambda_dssim: float = 0.2
+    lambda_dssim: float = field(default=0.2, metadata={"range": "[0, 1]"})
     """Weight of D-SSIM against L1 (3DGS uses 0.2; 0 = L1 only, as EndoPlanar Eq. 9)."""
-    occlusion_gamma: float = 0.0
+    occlusion_gamma: float = field(default=0.0, metadata={"range": "[0, inf)"})
     """gamma of Endo-GSG's occlusion importance map weighting the L1 term (Eq. 11-12); 0 = every
     tissue pixel weighs 1."""
 

@@ -2,8 +2,10 @@
 TOML) and `--set dotted.key=value`, all type-checked against the config's dataclasses.
 
 Every change goes through `apply_values`: a nested dict is matched key by key against the
-dataclass fields, each value is checked against the field's type annotation, and the first
-unknown key or wrong type stops with a SurgsplatError that names the full dotted key. Dicts of
+dataclass fields, each value is checked against the field's type annotation and its declared
+valid range (ranges.py), and the first unknown key, wrong type or value out of range stops with
+a SurgsplatError that names the full dotted key. A method's `name` is its preset's: a change of
+it is refused (`method_from_values`). Dicts of
 configs (`components`, `losses`) take new entries: a component needs its "kind", a loss weight
 starts from `LossWeight()`; a value of null removes an entry.
 """
@@ -20,6 +22,7 @@ from typing import Any, Literal
 
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import KIND_KEY, MethodConfig
+from surgsplat.methods.ranges import check_field
 from surgsplat.model.component import ComponentConfig
 
 
@@ -28,16 +31,18 @@ def apply_values(config: Any, values: dict, where: str = "config") -> Any:
     if not isinstance(values, dict):
         raise SurgsplatError(f"{where}: expected a table of settings, got {values!r}")
     hints = typing.get_type_hints(type(config))
-    names = {f.name for f in dataclasses.fields(config)}
+    fields = {f.name: f for f in dataclasses.fields(config)}
     changes = {}
     for key, value in values.items():
         if key == KIND_KEY and isinstance(config, ComponentConfig):
             if value != config.kind:
                 raise SurgsplatError(f"{where}.{KIND_KEY}: expected {config.kind!r}, got {value!r}")
             continue
-        if key not in names:
-            raise SurgsplatError(f"{where}: unknown setting {key!r}; known: {', '.join(sorted(names))}")
+        if key not in fields:
+            raise SurgsplatError(f"{where}: unknown setting {key!r}; "
+                                 f"known: {', '.join(sorted(fields))}")
         changes[key] = _coerce(getattr(config, key), value, hints[key], f"{where}.{key}")
+        check_field(fields[key], changes[key], f"{where}.{key}")
     return dataclasses.replace(config, **changes)
 
 
@@ -172,13 +177,16 @@ def read_config_file(path: Path) -> dict:
 
 def method_from_values(values: dict, preset: MethodConfig, where: str,
                        complete: bool = False) -> MethodConfig:
-    """`preset` with `values` applied; `values` may not change the method's name. `complete`:
-    `values` is a whole saved config, so a component or loss weight of the preset that it does
-    not list was removed from the run and is dropped here too."""
+    """`preset` with `values` applied; `values` may not change the method's name (the name of
+    the preset it starts from). `complete`: `values` is a whole saved config, so a component or
+    loss weight of the preset that it does not list was removed from the run and is dropped here
+    too."""
     values = dict(values)
     name = values.pop("name", preset.name)
     if name != preset.name:
-        raise SurgsplatError(f"{where}: names method {name!r}, but the preset is {preset.name!r}")
+        raise SurgsplatError(f"{where}.name: names method {name!r}, but the preset is "
+                             f"{preset.name!r} "
+                             "(a method's name is its preset's; choose the preset with --method)")
     if complete:
         kept = {key: {name: entry for name, entry in getattr(preset, key).items()
                       if name in values[key]}

@@ -17,6 +17,7 @@ from surgsplat.losses.biomechanics import BiomechanicsConfig
 from surgsplat.losses.depth import DepthLossConfig
 from surgsplat.losses.photometric import PhotometricConfig
 from surgsplat.methods.config import MethodConfig
+from surgsplat.methods.ranges import check_config
 from surgsplat.methods.settings import LossWeight
 from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig
@@ -226,7 +227,10 @@ PRESETS: dict[str, Preset] = {
 
 
 def method_config(name: str) -> MethodConfig:
-    """The preset called `name`; SurgsplatError listing the known ones otherwise."""
+    """The preset called `name`, its values checked against their declared ranges;
+    SurgsplatError listing the known presets otherwise."""
     if name not in PRESETS:
         raise SurgsplatError(f"unknown method {name!r}; known: {', '.join(sorted(PRESETS))}")
-    return PRESETS[name].build()
+    config = PRESETS[name].build()
+    check_config(config, name)
+    return config

@@ -10,19 +10,19 @@ from typing import Literal
 class LearningRates:
     """Adam learning rates of the canonical Gaussians' own parameters."""
 
-    means: float = 1.6e-4
+    means: float = field(default=1.6e-4, metadata={"range": "(0, inf)"})
     """Initial rate of the means, times the scene extent (3DGS convention)."""
-    means_final: float = 1.6e-6
+    means_final: float = field(default=1.6e-6, metadata={"range": "[0, inf)"})
     """Final rate of the means (exponential decay over the run), times the scene extent."""
-    log_scales: float = 5e-3
+    log_scales: float = field(default=5e-3, metadata={"range": "[0, inf)"})
     """Rate of the log-scales."""
-    quats: float = 1e-3
+    quats: float = field(default=1e-3, metadata={"range": "[0, inf)"})
     """Rate of the rotation quaternions."""
-    opacity_logits: float = 5e-2
+    opacity_logits: float = field(default=5e-2, metadata={"range": "[0, inf)"})
     """Rate of the opacity logits."""
-    sh_dc: float = 2.5e-3
+    sh_dc: float = field(default=2.5e-3, metadata={"range": "[0, inf)"})
     """Rate of the degree-0 colour."""
-    sh_rest: float = 1.25e-4
+    sh_rest: float = field(default=1.25e-4, metadata={"range": "[0, inf)"})
     """Rate of the higher-degree colour coefficients."""
 
 
@@ -30,20 +30,21 @@ class LearningRates:
 class TrainConfig:
     """How a run optimises: schedule, background, checkpoints, seed."""
 
-    iterations: int = 3000
+    iterations: int = field(default=3000, metadata={"range": "[1, inf)"})
     """Number of optimisation steps (one training frame each)."""
     lr: LearningRates = field(default_factory=LearningRates)
     """Learning rates of the canonical Gaussians (components set their own)."""
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    background: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0),
+                                                   metadata={"range": "[0, 1]"})
     """Colour behind all Gaussians (endoscopic scenes are dark)."""
-    checkpoint_every: int = 500
+    checkpoint_every: int = field(default=500, metadata={"range": "[1, inf)"})
     """Write RUN/checkpoints/latest.pt every this many iterations (and at the end, and on Ctrl-C)."""
-    checkpoint_seconds: float = 60.0
+    checkpoint_seconds: float = field(default=60.0, metadata={"range": "[0, inf)"})
     """Also write it when this many seconds of wall time have passed since the last one, so a
     kill -9 loses at most about this much training."""
-    seed: int = 0
+    seed: int = field(default=0, metadata={"range": "[0, 4294967295]"})
     """Seed of frame sampling and of densification."""
-    tool_mask_offset_px: int = 0
+    tool_mask_offset_px: int = field(default=0, metadata={"range": "[-100, 100]"})
     """Grow (> 0) or shrink (< 0) the training frames' tool masks by this many pixels before
     training: a mask-robustness test (PhysioSplat's +-10 px); eval scores with the true masks."""
 
@@ -52,9 +53,9 @@ class TrainConfig:
 class LossWeight:
     """The weight of one named loss term in the training objective."""
 
-    weight: float = 1.0
+    weight: float = field(default=1.0, metadata={"range": "[0, inf)"})
     """Multiplier of the term (0 = the term is not computed)."""
-    start: float = 0.0
+    start: float = field(default=0.0, metadata={"range": "[0, 1)"})
     """The term joins the objective once this fraction of the run (of train.iterations) has
     passed, so that `--iters` moves it with the rest of the schedule; in [0, 1)."""
 
@@ -67,17 +68,17 @@ class LossWeight:
 class DensifyConfig:
     """When and how Gaussians are added and removed."""
 
-    start: float = 0.1
+    start: float = field(default=0.1, metadata={"range": "[0, 1]"})
     """Densification may run once this fraction of the run (of train.iterations) has passed."""
-    stop: float = 2 / 3
+    stop: float = field(default=2 / 3, metadata={"range": "[0, 1]"})
     """No densification, pruning or opacity reset after this fraction of the run."""
-    every: int = 100
+    every: int = field(default=100, metadata={"range": "[1, inf)"})
     """Densify and prune every this many iterations (a cadence, not a stage: kept as --iters
     changes, like 3DGS's 100 from 600 to 30000 iterations)."""
-    grad_threshold: float = 0.002
+    grad_threshold: float = field(default=0.002, metadata={"range": "[0, inf)"})
     """Mean absolute screen-space gradient (NDC-scaled, per visible step) above which a Gaussian
     is densified."""
-    percent_dense: float = 0.01
+    percent_dense: float = field(default=0.01, metadata={"range": "[0, inf)"})
     """Gaussians larger than this share of the scene extent are split, smaller ones cloned."""
     split: Literal["long_axis", "sample"] = "long_axis"
     """How a large Gaussian is split in two. long_axis: the children sit at +-d along the
@@ -87,21 +88,21 @@ class DensifyConfig:
     by split_factor, which can leave part of what the parent covered uncovered. On the full
     phantom (deform3dgs, benchmarks/bench_densify_split.py), a densifying step cost the test
     PSNR 1.2 dB on average with sample and 0.4 dB with long_axis."""
-    split_factor: float = 1.6
+    split_factor: float = field(default=1.6, metadata={"range": "[1, inf)"})
     """A split Gaussian's children have the parent's scale (long_axis: its longest axis) divided
     by this."""
-    min_opacity: float = 0.005
+    min_opacity: float = field(default=0.005, metadata={"range": "[0, 1)"})
     """Prune Gaussians less opaque than this."""
-    max_world_scale: float = 0.1
+    max_world_scale: float = field(default=0.1, metadata={"range": "(0, inf)"})
     """Prune Gaussians larger than this share of the scene extent."""
-    max_screen_radius: float = 0.0
+    max_screen_radius: float = field(default=0.0, metadata={"range": "[0, inf)"})
     """Prune Gaussians whose projected radius exceeded this many pixels (0 = no limit)."""
-    opacity_reset_every: float = 0.0
+    opacity_reset_every: float = field(default=0.0, metadata={"range": "[0, 1]"})
     """Reset opacities to reset_opacity every this fraction of the run while densification runs
     (3DGS: 0.1 of its 30000 iterations; 0 = never). Never by default: on the full phantom
     (deform3dgs, 3000 iterations, one seed) resets at 0.3 and 0.6 of the run cost 0.45 dB of
     psnr_tissue (39.09 against 39.53) and raised the Gaussian P2S median from 0.391 to 0.409 mm."""
-    reset_opacity: float = 0.01
+    reset_opacity: float = field(default=0.01, metadata={"range": "(0, 1)"})
     """Opacity ceiling applied by a reset."""
 
     def window(self, iterations: int) -> tuple[int, int]:

@@ -11,7 +11,7 @@ background.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor, nn
@@ -25,9 +25,9 @@ from surgsplat.render.sh import SH_C0
 class ExposureConfig(ComponentConfig, kind="exposure"):
     """The exposure curve of a run."""
 
-    knots: int = 16
+    knots: int = field(default=16, metadata={"range": "[0, inf)"})
     """Knots of the piecewise-linear log-gain over t in [0, 1] (0 = no exposure model)."""
-    lr: float = 5e-3
+    lr: float = field(default=5e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the log-gains."""
 
     def resolve(self, scene: SceneInfo) -> "ExposureConfig":

@@ -8,7 +8,7 @@ clone, split and prune Gaussians with one mechanism.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor, nn
@@ -22,18 +22,18 @@ GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_
 class GaussianConfig:
     """How canonical Gaussians are created from an initial point cloud."""
 
-    sh_degree: int = 1
+    sh_degree: int = field(default=1, metadata={"range": "[0, 3]"})
     """Degree of the view-dependent spherical-harmonic colour (0 = diffuse colour only)."""
-    init_opacity: float = 0.3
+    init_opacity: float = field(default=0.3, metadata={"range": "(0, 1)"})
     """Opacity of every Gaussian at initialisation."""
-    init_scale_factor: float = 0.8
+    init_scale_factor: float = field(default=0.8, metadata={"range": "(0, inf)"})
     """Initial scale = this x the mean distance to the 3 nearest neighbours."""
-    init_thickness: float = 1.0
+    init_thickness: float = field(default=1.0, metadata={"range": "(0, 1]"})
     """Initial third scale axis (the camera's z: tissue faces the camera) as a fraction of the
     other two; 1 = isotropic, small = flat discs, as EndoPlanar starts its planar Gaussians."""
-    max_gaussians: int = 150_000
+    max_gaussians: int = field(default=150_000, metadata={"range": "[8, inf)"})
     """Hard cap on the number of Gaussians (densification stops adding beyond it)."""
-    max_per_pixel: float = 0.25
+    max_per_pixel: float = field(default=0.25, metadata={"range": "[0.05, inf)"})
     """Also cap the count at this many Gaussians per image pixel (keeps small scenes small)."""
 
     def cap(self, width: int, height: int) -> int:

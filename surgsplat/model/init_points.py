@@ -15,7 +15,7 @@ Without depth (monocular video) the points lie on a fronto-parallel plane at a c
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import cv2
@@ -34,20 +34,20 @@ class InitConfig:
 
     fusion: Literal["none", "mapf", "mogf"] = "mapf"
     """Which later-frame pixels join frame 0: none, motion-aware fusion, or MOG2 fusion."""
-    pixel_stride: int = 2
+    pixel_stride: int = field(default=2, metadata={"range": "[1, inf)"})
     """Use every stride-th pixel in x and y."""
-    max_points: int = 40_000
+    max_points: int = field(default=40_000, metadata={"range": "[4, inf)"})
     """Random subsample to at most this many points (seeded)."""
-    motion_threshold: float = 0.01
+    motion_threshold: float = field(default=0.01, metadata={"range": "[0, inf)"})
     """MAPF: depth change, as a fraction of the pixel's first depth, that marks it as moving
     (unit-free: 1 mm at the phantom's 90 mm)."""
-    mog_var_threshold: float = 16.0
+    mog_var_threshold: float = field(default=16.0, metadata={"range": "[0, inf)"})
     """MOGF: MOG2 variance threshold (OpenCV's varThreshold)."""
-    monocular_depth: float = 50.0
+    monocular_depth: float = field(default=50.0, metadata={"range": "(0, inf)"})
     """Scenes without depth: distance of the initial plane, in scene units."""
-    seed: int = 0
+    seed: int = field(default=0, metadata={"range": "[0, 4294967295]"})
     """Seed of the subsampling."""
-    max_fusion_frames: int = 256
+    max_fusion_frames: int = field(default=256, metadata={"range": "[1, inf)"})
     """Fusion looks at no more than this many training frames: every one of a shorter clip,
     else this many evenly spaced from the first, so that start-up time and memory do not grow
     with the length of the clip."""

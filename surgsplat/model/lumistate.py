@@ -50,7 +50,7 @@ import dataclasses
 import math
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
@@ -77,37 +77,37 @@ GAIN_FLOOR = 0.05
 class LumiStateConfig(ComponentConfig, kind="lumistate"):
     """The illumination network, the SH modulation and their learning rates."""
 
-    map_side: int = 32
+    map_side: int = field(default=32, metadata={"range": "[4, 1024]"})
     """Shorter side, pixels, of the brightness and illumination maps the UNet works on
     (rounded to a multiple of 4). Illumination is smooth, so a coarse map suffices; 32 (32 x 40
     for 640 x 512 frames) keeps the UNet's share of a CPU training step small."""
-    unet_channels: int = 8
+    unet_channels: int = field(default=8, metadata={"range": "[1, inf)"})
     """Feature maps of the UNet's first level (doubling at each of its 3 levels)."""
-    embedding_dim: int = 16
+    embedding_dim: int = field(default=16, metadata={"range": "[1, inf)"})
     """Size of the illumination embedding e_t."""
-    pe_frequencies: int = 4
+    pe_frequencies: int = field(default=4, metadata={"range": "[0, 16]"})
     """Octaves of the sinusoidal positional encoding of the Gaussians' deformed means."""
-    mlp_width: int = 64
+    mlp_width: int = field(default=64, metadata={"range": "[1, inf)"})
     """Width of the fusion MLP's three hidden layers."""
-    modulation_grid: int = 32
+    modulation_grid: int = field(default=32, metadata={"range": "[1, 256]"})
     """Cells per side of the grid (over the initial points' centre +- extent) on whose occupied
     corners the fusion MLP runs; each Gaussian takes the trilinear interpolation of its cell's
     corners. 32 samples the finest encoding octave (pe_frequencies 4) 4 times per period."""
-    sh_degree: int = 1
+    sh_degree: int = field(default=1, metadata={"range": "[0, 3]"})
     """Modulate the SH coefficients up to this degree (higher ones pass unchanged)."""
-    max_log_gain: float = 3.0
+    max_log_gain: float = field(default=3.0, metadata={"range": "(0, inf)"})
     """Bound of |sigma_i| (the multiplicative term is at most exp of this)."""
-    bright_radius: int = 2
+    bright_radius: int = field(default=2, metadata={"range": "[0, inf)"})
     """r0 of the bright-channel prior's max-pooling window 2 r0 + 1 (Eq. 8), pixels."""
-    unet_lr: float = 1e-3
+    unet_lr: float = field(default=1e-3, metadata={"range": "(0, inf)"})
     """Adam learning rate of the UNet at iteration 0 (decays to a tenth at the end)."""
-    mlp_lr: float = 1e-3
+    mlp_lr: float = field(default=1e-3, metadata={"range": "(0, inf)"})
     """Adam learning rate of the fusion MLP at iteration 0 (decays to a tenth at the end)."""
-    num_frames: int = 0
+    num_frames: int = field(default=0, metadata={"range": "[0, inf)"})
     """Frames of the clip (set when resolved for a scene)."""
-    map_height: int = 0
+    map_height: int = field(default=0, metadata={"range": "[0, inf)"})
     """Height of the maps, pixels (set when resolved for a scene)."""
-    map_width: int = 0
+    map_width: int = field(default=0, metadata={"range": "[0, inf)"})
     """Width of the maps, pixels (set when resolved for a scene)."""
 
     def resolve(self, scene: SceneInfo) -> "LumiStateConfig":

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -66,21 +66,21 @@ integer; -1 = not anchored yet, anchored at the next render)."""
 class MeshAnchorConfig(ComponentConfig, kind="mesh_anchor"):
     """The mesh extraction, its schedule and the clipping band of anchored Gaussians."""
 
-    resolution: int = 128
+    resolution: int = field(default=128, metadata={"range": "[2, 1024]"})
     """Marching-cubes cells along the longest side of the SDF's box."""
-    reanchor_every: int = 100
+    reanchor_every: int = field(default=100, metadata={"range": "[1, inf)"})
     """Re-extract the mesh and re-anchor every Gaussian after every this many training steps."""
-    offset_band: float = 2.0
+    offset_band: float = field(default=2.0, metadata={"range": "[0, inf)"})
     """e_alpha: the normal offset is clipped to +- this many face radii."""
-    scale_limit: float = 4.0
+    scale_limit: float = field(default=4.0, metadata={"range": "(0, inf)"})
     """s_alpha: the two in-face scales are clipped to this many face radii."""
-    normal_scale_ratio: float = 0.25
+    normal_scale_ratio: float = field(default=0.25, metadata={"range": "(0, inf)"})
     """s_beta: the third (normal) scale is clipped to s_alpha s_beta face radii."""
-    max_tilt_deg: float = 30.0
+    max_tilt_deg: float = field(default=30.0, metadata={"range": "[0, 90]"})
     """phi_max: largest angle between a Gaussian's third axis and its face's normal, degrees."""
-    min_face_radius: float = 0.25
+    min_face_radius: float = field(default=0.25, metadata={"range": "(0, inf)"})
     """Face radius used for the clips: the inradius, at least this many marching-cubes cells."""
-    candidate_faces: int = 8
+    candidate_faces: int = field(default=8, metadata={"range": "[1, inf)"})
     """Faces of nearest centroid among which a Gaussian's nearest face is looked for."""
 
     def build(self) -> "MeshAnchor":

@@ -21,7 +21,7 @@ bend the geometry; pixels without a valid depth normal get no lobe. The lobe is 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -38,16 +38,16 @@ ROUGHNESS_KEY = "specular_log_roughness"
 class SpecularConfig(ComponentConfig, kind="specular"):
     """Per-Gaussian co-located specular lobe."""
 
-    init_albedo: float = 0.01
+    init_albedo: float = field(default=0.01, metadata={"range": "(0, 1)"})
     """Initial beta of every Gaussian, in (0, 1). The paper's 0.1 adds 0.1 of white to every
     surface facing the camera at the start, on top of degree-0 colours initialised from images
     that already contain the highlights (counted twice); 0.01 starts the lobe near zero and lets
     the highlights move into it."""
-    init_roughness: float = 0.2
+    init_roughness: float = field(default=0.2, metadata={"range": "(0, inf)"})
     """Initial gamma: 0.2 gives sharpness 25, a lobe at 1/e where n . v = 0.96."""
-    albedo_lr: float = 0.01
+    albedo_lr: float = field(default=0.01, metadata={"range": "[0, inf)"})
     """Adam learning rate of the albedo logits."""
-    roughness_lr: float = 0.005
+    roughness_lr: float = field(default=0.005, metadata={"range": "[0, inf)"})
     """Adam learning rate of the log-roughness."""
 
     def build(self) -> "SpecularLobe":

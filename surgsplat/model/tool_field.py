@@ -33,7 +33,7 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -60,37 +60,37 @@ TOOL_CHANNEL = "tool_probability"
 class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     """Tool Gaussians with per-frame rigid motion, semantic logits and tool-free rendering."""
 
-    num_frames: int = 0
+    num_frames: int = field(default=0, metadata={"range": "[0, inf)"})
     """Frames of the clip (one rigid pose each); set from the scene when resolved."""
-    max_points: int = 4000
+    max_points: int = field(default=4000, metadata={"range": "[1, inf)"})
     """At most this many initial tool Gaussians (a seeded subsample of the reference frame's
     tool pixels)."""
-    pixel_stride: int = 2
+    pixel_stride: int = field(default=2, metadata={"range": "[1, inf)"})
     """Use every stride-th tool pixel in x and y."""
-    monocular_tool_depth: float = 0.8
+    monocular_tool_depth: float = field(default=0.8, metadata={"range": "(0, 1]"})
     """Scenes without depth: tool pixels are placed at this fraction of the initial points'
     median camera depth (in front of the tissue)."""
-    init_logit: float = 4.0
+    init_logit: float = field(default=4.0, metadata={"range": "[0, inf)"})
     """Initial |s|: tissue Gaussians start at +init_logit, tool Gaussians at -init_logit."""
-    semantic_lr: float = 0.005
+    semantic_lr: float = field(default=0.005, metadata={"range": "[0, inf)"})
     """Adam learning rate of the semantic logits. Adam moves a logit by about this per step
     whatever the gradient's size, and the mask loss pushes tissue Gaussians seen through the
     tool towards the tool: at 0.05 they flip within ~80 visits and leave holes in the tool-free
     render (full phantom, 400 iterations: psnr_occluded 15 dB); 0.005 keeps the initial split."""
-    rotation_lr: float = 1e-3
+    rotation_lr: float = field(default=1e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the per-frame rotation vectors (radians)."""
-    translation_lr: float = 1e-3
+    translation_lr: float = field(default=1e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the per-frame translations, in units of the scene extent."""
-    icp_iterations: int = 30
+    icp_iterations: int = field(default=30, metadata={"range": "[0, inf)"})
     """Point-to-point ICP iterations per frame when the initial poses are registered."""
-    min_hull_opacity: float = 0.1
+    min_hull_opacity: float = field(default=0.1, metadata={"range": "[0, 1]"})
     """Tool Gaussians at least this opaque span the tool proxy (convex hull)."""
-    densify_margin: float = 2.0 / PHANTOM_EXTENT_MM
+    densify_margin: float = field(default=2.0 / PHANTOM_EXTENT_MM, metadata={"range": "[0, 1)"})
     """No densification where the tool proxy's signed distance is below this fraction of the
     scene extent, in [0, 1) (the paper's epsilon, 2 mm on the phantom: 0.0259)."""
-    occlusion_sigma: float = 0.1
+    occlusion_sigma: float = field(default=0.1, metadata={"range": "(0, inf)"})
     """Colour difference (mean over RGB) at which an occluded Gaussian's weight is 1/e."""
-    strain_neighbours: int = 16
+    strain_neighbours: int = field(default=16, metadata={"range": "[1, inf)"})
     """k of the canonical kNN graph of the arap_strain_mean diagnostic."""
 
     def resolve(self, scene: SceneInfo) -> "ToolFieldConfig":

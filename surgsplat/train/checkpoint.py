@@ -7,6 +7,7 @@ read with `torch.load(weights_only=True)`, which refuses anything that would run
 from __future__ import annotations
 
 from pathlib import Path
+from typing import BinaryIO
 
 import torch
 
@@ -23,10 +24,45 @@ def previous_path(path: Path) -> Path:
     return path.with_name("previous" + path.suffix)
 
 
+class _WriteErrorKeeper:
+    """A binary handle's write and flush, keeping the first OSError they raise (a full disk,
+    say): torch.save turns that error into a RuntimeError about its zip container, which names
+    neither the file nor the cause."""
+
+    def __init__(self, handle: BinaryIO):
+        self.handle = handle
+        self.error: OSError | None = None
+
+    def write(self, data: bytes) -> int:
+        return self._keeping_error(self.handle.write, data)
+
+    def flush(self) -> None:
+        self._keeping_error(self.handle.flush)
+
+    def _keeping_error(self, call, *args):
+        try:
+            return call(*args)
+        except OSError as err:
+            self.error = self.error or err
+            raise
+
+
+def torch_save(state: dict, handle: BinaryIO) -> None:
+    """torch.save `state` to `handle`; an OSError of the handle's writes is raised as itself."""
+    writer = _WriteErrorKeeper(handle)
+    try:
+        torch.save(state, writer)
+    except RuntimeError:
+        if writer.error is None:
+            raise
+        raise writer.error from None
+
+
 def save_atomic(state: dict, path: Path) -> None:
     """Write `state` to `path` atomically: a crash, kill or full disk during the write leaves
-    the previous checkpoint intact; the one it replaces is kept as previous_path(path)."""
-    write_atomic(path, lambda handle: torch.save(state, handle), keep_previous=previous_path(path))
+    the previous checkpoint intact; the one it replaces is kept as previous_path(path). A
+    failed write raises an OSError naming `path` (e.g. No space left on device)."""
+    write_atomic(path, lambda handle: torch_save(state, handle), keep_previous=previous_path(path))
 
 
 def load_latest_or_previous(path: Path) -> tuple[dict, Path, DataError | None]:

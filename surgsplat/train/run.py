@@ -15,7 +15,6 @@ from surgsplat.data.scene import Scene, load_scene
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import method_from_values
-from surgsplat.methods.registry import method_config
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.train.checkpoint import load_checkpoint, model_from_state, previous_path
 from surgsplat.train.trainer import (CHECKPOINT, CONFIG_FILE, SCENE_FILE, SCENE_ID_FILE,
@@ -62,7 +61,9 @@ def run_lock(run_dir: Path, create: bool = False) -> Iterator[None]:
 
 
 def read_run_config(run_dir: Path) -> MethodConfig:
-    """The MethodConfig saved in RUN/config.json (its preset, with the saved values applied)."""
+    """The MethodConfig saved in RUN/config.json, built from the saved values alone (each
+    component from its saved kind), so that a run loads whatever its name; the values are
+    checked as any others are (types and ranges)."""
     path = Path(run_dir) / CONFIG_FILE
     if not path.is_file():
         raise DataError(path, "missing: not a surgsplat run folder (train one with "
@@ -71,9 +72,10 @@ def read_run_config(run_dir: Path) -> MethodConfig:
         saved = json.loads(path.read_text())
     except json.JSONDecodeError as err:
         raise DataError(path, f"is not valid JSON ({err})") from err
-    if not isinstance(saved, dict) or "name" not in saved:
+    if not isinstance(saved, dict) or not isinstance(saved.get("name"), str):
         raise DataError(path, "expected a saved method configuration with a 'name'")
-    return method_from_values(saved, method_config(saved["name"]), where=str(path), complete=True)
+    return method_from_values(saved, MethodConfig(name=saved["name"]), where=str(path),
+                              complete=True)
 
 
 def read_run_scene(run_dir: Path, data_dir: Path | None = None) -> Scene:

@@ -110,23 +110,33 @@ def add_component_points(context: SetupContext, colors: Tensor,
     return means, colors
 
 
+def read_log(path: Path) -> list[dict]:
+    """The entries of a training log (RUN/train_log.jsonl), in order: every line that is a JSON
+    object with an integer "iteration" greater than the previous entry's. Lines that are not
+    (one cut by a kill, bytes that are not UTF-8, another JSON value, an entry without an
+    iteration or out of order) are skipped; no file gives no entries."""
+    if not path.is_file():
+        return []
+    entries: list[dict] = []
+    for raw in path.read_bytes().splitlines():
+        try:
+            entry = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            continue
+        if isinstance(entry, dict) and type(entry.get("iteration")) is int \
+                and (not entries or entry["iteration"] > entries[-1]["iteration"]):
+            entries.append(entry)
+    return entries
+
+
 def trim_log(path: Path, iteration: int) -> None:
-    """Cut the training log back to its entries up to `iteration` (an atomic rewrite), so that
-    after a kill, a stop or a resume it holds each iteration at most once, in increasing order,
-    and nothing past the checkpoint the run continues from. Unreadable lines (a line cut by a
-    kill) are dropped."""
+    """Cut the training log back to its entries (`read_log`) up to `iteration` (an atomic
+    rewrite), so that after a kill, a stop or a resume it holds each iteration at most once, in
+    increasing order, and nothing past the checkpoint the run continues from."""
     if not path.is_file():
         return
-    kept = []
-    for line in path.read_text(errors="replace").splitlines():
-        try:
-            entry = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(entry, dict) and isinstance(entry.get("iteration"), int) \
-                and entry["iteration"] <= iteration and (not kept or entry["iteration"] > kept[-1][0]):
-            kept.append((entry["iteration"], line))
-    write_text_atomic(path, "".join(line + "\n" for _, line in kept))
+    kept = [entry for entry in read_log(path) if entry["iteration"] <= iteration]
+    write_text_atomic(path, "".join(json.dumps(entry) + "\n" for entry in kept))
 
 
 class Trainer:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import ray
+import typer
 from rich.console import Console
 
 from surgsplat.cli.batch import SUMMARY_FILE, batch_command, clip_jobs, run_batch, write_summary
@@ -53,7 +54,9 @@ def test_batch_on_ray_records_failure_and_skips_finished_clips(local_ray, small_
     assert (out / "report.html").stat().st_size
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
-    batch_command(clips, out, iters=4, geometry=False)  # as `surgsplat batch` calls it
+    with pytest.raises(typer.Exit) as stopped:  # a clip failed: exit status 1
+        batch_command(clips, out, iters=4, geometry=False)  # as `surgsplat batch` calls it
+    assert stopped.value.exit_code == 1
     printed = capsys.readouterr().out
     assert "3 of 3 clips already finished; skipped" in printed
     assert "2 of 3 clips done, 1 failed" in printed

@@ -72,3 +72,22 @@ def test_importance_re_weights_tissue_pixels_without_rescaling_the_loss(gamma):
     no_tissue = SimpleNamespace(tool=torch.ones(4, 4, dtype=torch.bool),
                                 tissue=torch.zeros(4, 4, dtype=torch.bool))
     assert torch.equal(importance.weights(no_tissue), torch.zeros(4, 4))
+
+
+def test_the_map_is_restored_from_its_loss_components_state():
+    """What `setup` computed must come back from a checkpoint: a resumed run's fresh component
+    has seen no frame (issue 30, class 6)."""
+    from surgsplat.losses.photometric import PhotometricConfig
+
+    frames = frames_with_tools()
+    trained = PhotometricConfig(occlusion_gamma=10.0).build()
+    trained.importance.observe(frames)
+    resumed = PhotometricConfig(occlusion_gamma=10.0).build()
+    resumed.load_state_dict(trained.state_dict())
+    assert torch.equal(resumed.importance.weights(frames[1]), trained.importance.weights(frames[1]))
+    without_map = PhotometricConfig(occlusion_gamma=10.0).build()
+    without_map.load_state_dict({})  # a checkpoint from before the map was kept loads (eval)
+    off = PhotometricConfig(occlusion_gamma=0.0).build()
+    off.importance.observe(frames)
+    assert off.state_dict() == {}  # gamma 0: no map, the weights are the tissue mask
+    assert torch.equal(off.importance.weights(frames[1]), frames[1].tissue.float())

@@ -33,10 +33,9 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem
+from surgsplat.data.layout import SceneMeta, SceneWriter, frame_stem, write_image
 from surgsplat.data.phantom.camera_path import CAMERAS
 from surgsplat.data.phantom.kinematics import TOOL_KINEMATICS_FILE, tool_kinematics
 from surgsplat.data.phantom.mesh import grid_mesh
@@ -136,7 +135,8 @@ def generate_phantom(config: PhantomConfig, out_dir: Path,
     """Render the phantom `config` into the new or empty folder `out_dir` and return it;
     `progress(done, total)` is called after each frame. The files are written into a hidden
     sibling folder that is renamed to `out_dir` only when complete, so a stopped generation
-    never leaves a half-written phantom behind."""
+    never leaves a half-written phantom behind. An OSError (a full disk, say) names the file of
+    `out_dir` that could not be written, or `out_dir` itself."""
     preset, num_frames = check_phantom_request(config, out_dir)
     final = Path(out_dir)
     partial = final.with_name(f".{final.name}.partial-{os.getpid()}")
@@ -146,9 +146,20 @@ def generate_phantom(config: PhantomConfig, out_dir: Path,
         if final.exists():
             final.rmdir()  # an empty folder (check_phantom_request refused any other)
         os.replace(partial, final)
+    except OSError as err:
+        raise _naming_the_output(err, partial, final) from err
     finally:
         shutil.rmtree(partial, ignore_errors=True)
     return final
+
+
+def _naming_the_output(err: OSError, partial: Path, final: Path) -> OSError:
+    """`err` with the path the user asked for: a file of the hidden folder `partial` (removed
+    on failure) becomes the same file of `final`, and an error naming no file names `final`."""
+    if err.filename is not None and not Path(err.filename).is_relative_to(partial):
+        return err
+    named = final if err.filename is None else final / Path(err.filename).relative_to(partial)
+    return OSError(err.errno, err.strerror or str(err), str(named))
 
 
 def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int, out_dir: Path,
@@ -178,7 +189,7 @@ def _write_phantom(config: PhantomConfig, preset: PhantomPreset, num_frames: int
         np.save(out_dir / NORMALS_DIR / f"{stem}.npy", frame.normals)
         if writes_shading:
             np.save(out_dir / SHADING_DIR / f"{stem}.npy", frame.shading)
-        cv2.imwrite(str(out_dir / HIGHLIGHTS_DIR / f"{stem}.png"), _highlights(scene, frame))
+        write_image(out_dir / HIGHLIGHTS_DIR / f"{stem}.png", _highlights(scene, frame))
         vertices, faces, colors = grid_mesh(frame.tissue_depth, scene.xn, scene.yn,
                                             preset.mesh_step, frame.albedo)  # camera space
         camera_to_world = scene.camera_path.camera_to_world(scene.time(index))
@@ -212,7 +223,7 @@ def _highlights(scene: PhantomScene, frame: PhantomFrame) -> np.ndarray:
 def _write_rgb(path: Path, image: np.ndarray) -> None:
     """Write float RGB [H, W, 3] in [0, 1] as an 8-bit PNG."""
     pixels = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
-    cv2.imwrite(str(path), pixels[..., ::-1])
+    write_image(path, pixels[..., ::-1])
 
 
 def _extra(config: PhantomConfig, preset: PhantomPreset, num_frames: int,
