@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.surgsplat-installed
 NATIVE_SOURCES := $(wildcard csrc/*.cpp csrc/*.h csrc/*/*.cpp csrc/*/*.h) CMakeLists.txt pyproject.toml
 
-.PHONY: demo test install clean aarch64-sysroot x86-64-v4-guest
+.PHONY: demo test test-fast install clean aarch64-sysroot x86-64-v4-guest
 
 install: $(STAMP)
 
@@ -24,6 +24,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# Development tier: everything but the tests marked slow (end-to-end runs).
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not slow"
 
 # Debian's arm64 Python 3.11 and NumPy, unpacked (not installed) for tests/render/test_neon_replay.py,
 # which runs the cross-compiled NEON kernels under qemu-aarch64 on an x86-64 host (needs root).

@@ -203,6 +203,27 @@ def long_clip_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def faults_table(report: dict) -> str:
+    """Markdown for one bench_faults report: the work kill -9 lost, and where the report has
+    them, the cases of issue 30 handled per class with the totals of bad outcomes."""
+    lines = [
+        f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
+        f"{report['date'][:10]}: training killed with kill -9 {report['trials']} times "
+        f"(checkpoint every {report['checkpoint_seconds']:g} s) lost a median "
+        f"{report['lost_wall_s_median']:.1f} s of work, at most {report['lost_wall_s_max']:.1f} s; "
+        f"damaged checkpoints {report['checkpoints_damaged']}, final resume "
+        f"{'ok' if report['final_resume_ok'] else 'FAILED'}."]
+    cases = report.get("issue_30")
+    if cases:
+        lines += ["", f"Issue 30's classes against the CLI: {cases['handled']} of {cases['cases']} "
+                      f"cases handled; silent wrong results {cases['silent_wrong']}, overwritten "
+                      f"user files {cases['overwrote']}, tracebacks {cases['traceback']}, hangs "
+                      f"{cases['hang']}.", "", "| class | cases | handled |", "|---|---|---|"]
+        lines += [f"| {name} | {row['cases']} | {row['handled']} |"
+                  for name, row in cases["by_class"].items()]
+    return "\n".join(lines)
+
+
 def articulation_table(report: dict) -> str:
     """Markdown for one bench_articulation report: the articulation's errors, the export's
     time and what the simulated scene did, each with its target where the issue sets one."""
@@ -298,7 +319,8 @@ RENDERERS = {"bench_render": render_table, "bench_train": train_table,
              "bench_threads": render_threads_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
              "bench_shading_depth": shading_depth_table, "bench_batch": methods_table,
-             "bench_long_clip": long_clip_table, "bench_articulation": articulation_table}
+             "bench_long_clip": long_clip_table, "bench_articulation": articulation_table,
+             "bench_faults": faults_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A README region of one bench_methods suite, e.g. bench_methods_endoplanar."""
 

@@ -9,20 +9,9 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from surgsplat.export.articulation import articulate, write_articulation
-from surgsplat.train.run import TrainedRun, load_trained_run, run_lock
-
-
-def articulate_and_write(run: TrainedRun, console: Console) -> dict:
-    """Estimate `run`'s articulation, write it, print one summary line; returns it."""
-    articulation = articulate(run)
-    path = write_articulation(run.run_dir, articulation)
-    estimated = sum(record["estimated"] for record in articulation["frames"])
-    limits = ", ".join(f"[{low:.1f}, {high:.1f}]" for low, high in articulation["limits_deg"])
-    console.print(f"articulation of {articulation['parts']} tool Gaussians (shaft, jaws), "
-                  f"{estimated} frames estimated, jaw ranges {limits} deg: {path}",
-                  markup=False, highlight=False)
-    return articulation
+from surgsplat.export.articulation import ARTICULATION_FILE
+from surgsplat.pipeline.articulate import articulate_run, articulation_summary
+from surgsplat.train.run import load_trained_run, run_lock
 
 
 def articulate_command(
@@ -34,4 +23,6 @@ def articulate_command(
     """Estimate the tool's shaft and two revolute jaws (axis, per-frame angles) into
     RUN/articulation.json."""
     with run_lock(run_dir):
-        articulate_and_write(load_trained_run(run_dir, data), Console())
+        articulation = articulate_run(load_trained_run(run_dir, data))
+    Console().print(articulation_summary(articulation, run_dir / ARTICULATION_FILE),
+                    markup=False, highlight=False)

@@ -2,7 +2,8 @@
 
 Each stage is a plain function of the clip's folders that can run again after a stop: import
 is skipped when the scene is complete, training resumes from the run's checkpoint, evaluation
-and rendering rewrite their files. `surgsplat batch` runs them as Ray tasks
+and rendering rewrite their files. Train, evaluate and render call `surgsplat.pipeline`
+without progress bars (the batch shows each clip's progress itself). `surgsplat batch` runs them as Ray tasks
 (`surgsplat.cli.batch`); they run as well one after another in one process.
 
 A batch folder holds one folder per clip, OUT/<clip name>/, with scene/ (the imported scene,
@@ -24,18 +25,19 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from surgsplat.atomic import write_text_atomic
-from surgsplat.cli.eval_cmd import METRICS_FILE, evaluate_and_report
 from surgsplat.cli.main import os_error_line
-from surgsplat.cli.render_videos import write_run_videos
-from surgsplat.cli.train import build_method_config, train_run
+from surgsplat.cli.train import build_method_config
 from surgsplat.data.importer import ImportConfig, import_scene
 from surgsplat.data.layout import POSES_FILE
 from surgsplat.data.scene import load_scene
-from surgsplat.eval.run_metrics import EvalOptions
+from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions
 from surgsplat.methods.config import MethodConfig
+from surgsplat.pipeline.evaluate import evaluate
+from surgsplat.pipeline.render import write_run_videos
+from surgsplat.pipeline.train import train_run
 from surgsplat.render.native import set_threads
 from surgsplat.train.run import load_trained_run, run_lock
-from surgsplat.train.trainer import CHECKPOINT, LOG_FILE
+from surgsplat.train.trainer import CHECKPOINT, LOG_FILE, read_log
 
 STATUS_FILE = "status.json"
 DONE, FAILED = "done", "failed"
@@ -111,7 +113,7 @@ def eval_stage(job: ClipJob, run_dir: Path) -> Path:
     """Evaluate the run on its test frames (writes RUN/metrics.json)."""
     set_threads(job.threads)
     with run_lock(run_dir):
-        evaluate_and_report(run_dir, EvalOptions(geometry=job.geometry))
+        evaluate(load_trained_run(run_dir), EvalOptions(geometry=job.geometry))
     return run_dir
 
 
@@ -212,12 +214,9 @@ def read_status(job: ClipJob) -> dict | None:
 
 
 def trained_iterations(run_dir: Path) -> int:
-    """The last logged iteration of a run (0 before its first log line)."""
-    try:
-        lines = (run_dir / LOG_FILE).read_text().splitlines()
-        return int(json.loads(lines[-1])["iteration"]) if lines else 0
-    except (OSError, ValueError, KeyError, IndexError):
-        return 0
+    """The last logged iteration of a run (0 before its first log entry)."""
+    entries = read_log(run_dir / LOG_FILE)
+    return entries[-1]["iteration"] if entries else 0
 
 
 def summary_row(job: ClipJob) -> dict:

@@ -10,8 +10,8 @@ from rich.console import Console
 
 from surgsplat.cli.eval_cmd import evaluate_and_report
 from surgsplat.cli.info import print_summary_table
-from surgsplat.cli.render_videos import write_run_videos
-from surgsplat.cli.train import train_run
+from surgsplat.cli.render_videos import write_videos_with_progress
+from surgsplat.cli.train import train_with_progress
 from surgsplat.data.phantom.generate import PhantomConfig, generate_phantom
 from surgsplat.errors import SurgsplatError
 from surgsplat.export.report import write_report
@@ -48,11 +48,12 @@ def _demo(scene_dir: Path, run_dir: Path, method: str, iters: int) -> None:
         generate_phantom(PhantomConfig(preset="small", motion="pulling"), scene_dir)
     print_summary_table(scene_dir)
     console.rule("2/4 train")
-    train_run(method_config(method), scene_dir, run_dir, resume=resume, iterations=iters)
+    train_with_progress(method_config(method), scene_dir, run_dir, resume=resume,
+                        iterations=iters)
     console.rule("3/4 evaluate")
     evaluate_and_report(run_dir)
     console.rule("4/4 render and report")
-    videos = write_run_videos(load_trained_run(run_dir), run_dir / "videos", fps=10.0)
+    videos = write_videos_with_progress(load_trained_run(run_dir), run_dir / "videos", fps=10.0)
     report = write_report([run_dir], run_dir / "report.html")
     console.print(f"\nresults in {run_dir}: metrics.json, "
                   + ", ".join(str(v.relative_to(run_dir)) for v in videos))

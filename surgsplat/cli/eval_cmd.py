@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -10,14 +9,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from surgsplat.atomic import write_text_atomic
 from surgsplat.cli.progress import progress_bar
-from surgsplat.errors import DataError
-from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
+from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions
+from surgsplat.pipeline.evaluate import evaluate
 from surgsplat.train.run import load_trained_run, run_lock
-from surgsplat.train.trainer import scene_identity
-
-METRICS_FILE = "metrics.json"
 
 
 def print_metrics(metrics: dict, console: Console) -> None:
@@ -47,18 +42,12 @@ def print_coverage(metrics: dict, console: Console) -> None:
 
 def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
                         data: Path | None = None) -> dict:
-    """Evaluate the run, write RUN/metrics.json, print the table; returns the metrics."""
+    """Evaluate the run with a progress bar (`pipeline.evaluate.evaluate`: writes
+    RUN/metrics.json), print the table; returns the metrics."""
     run = load_trained_run(run_dir, data)
-    if not run.scene.test_frames:
-        raise DataError(run.scene.root, "has no test frame (frames 1, 9, 17, ...): evaluation "
-                                        "needs a scene of at least 2 frames")
     with progress_bar() as bar:
         task = bar.add_task("evaluate", total=len(run.scene.test_frames))
-        metrics = evaluate_run(run, options or EvalOptions(),
-                               lambda done, _: bar.update(task, completed=done))
-    metrics["method"] = run.config.name
-    metrics["scene"] = scene_identity(run.scene)
-    write_text_atomic(Path(run_dir) / METRICS_FILE, json.dumps(metrics, indent=2) + "\n")
+        metrics = evaluate(run, options, lambda done, _: bar.update(task, completed=done))
     console = Console()
     print_metrics(metrics, console)
     print_coverage(metrics, console)

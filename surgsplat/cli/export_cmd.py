@@ -7,23 +7,19 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import torch
 import typer
 from rich.console import Console
 
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.scene import Scene
 from surgsplat.errors import SurgsplatError
-from surgsplat.export.articulation import (articulate, read_articulation, tool_field,
-                                           write_articulation)
-from surgsplat.export.mesh import MESH_FORMATS, MeshExtractor, MeshOptions, write_mesh
-from surgsplat.export.ply import write_gaussian_ply
-from surgsplat.export.sim import write_sim_scene
+from surgsplat.export.mesh import MESH_FORMATS, MeshOptions
 from surgsplat.model.component import FrameTime
-from surgsplat.train.run import TrainedRun, load_trained_run, run_lock
+from surgsplat.pipeline.export import Moment, export_meshes, export_ply, export_sim
+from surgsplat.train.run import load_trained_run, run_lock
 
 
-def chosen_moments(scene: Scene, frames: str, time: float | None) -> list[tuple[str, FrameTime]]:
+def chosen_moments(scene: Scene, frames: str, time: float | None) -> list[Moment]:
     """(file stem, moment) pairs: frames "all" or "i,j,...", or one time T in [0, 1] (the
     nearest frame's index goes with it)."""
     count = len(scene.frames)
@@ -99,53 +95,18 @@ def export_command(
         moments = chosen_moments(run.scene, frames, time)
         if ply:
             folder = out or Path(run_dir) / "export" / "ply"
-            with torch.no_grad():
-                for stem, when in moments:
-                    write_gaussian_ply(run.model.state_at(when), folder / f"{stem}.ply")
+            export_ply(run, moments, folder)
             console.print(f"{len(moments)} PLY file(s), {run.model.gaussians.num_gaussians} "
                           f"Gaussians each, in {folder}")
         if mesh:
             folder = out or Path(run_dir) / "export" / "mesh"
-            background = torch.tensor(run.config.train.background, dtype=torch.float32)
-            extractor = MeshExtractor(run.model, options, background)
-            faces = 0
-            for stem, when in moments:
-                frame_mesh = extractor.frame_mesh(run.scene.frames[when.index], when)
-                write_mesh(frame_mesh, folder / f"{stem}.{mesh_format}")
-                faces += len(frame_mesh.faces)
-            console.print(f"{len(moments)} mesh file(s) ({extractor.route} route, "
-                          f"{faces // max(len(moments), 1)} faces on average) in {folder}")
+            route, faces = export_meshes(run, moments, folder, options, mesh_format)
+            console.print(f"{len(moments)} mesh file(s) ({route} route, {faces} faces on "
+                          f"average) in {folder}")
         if sim:
-            export_sim(run, sim, frame, options, console)
-
-
-def export_sim(run: TrainedRun, folder: Path, index: int, options: MeshOptions,
-               console: Console) -> None:
-    """Write frame `index` of `run` as a simulation scene into `folder`."""
-    count = len(run.scene.frames)
-    if not 0 <= index < count:
-        raise SurgsplatError(f"--frame: the scene has frames 0..{count - 1}; got {index}")
-    tool_field(run)  # the method must have a tool to export
-    articulation = read_articulation(run.run_dir)
-    if articulation is None:
-        articulation = articulate(run)
-        write_articulation(run.run_dir, articulation)
-    if len(articulation["frames"]) != count:
-        raise SurgsplatError(f"{run.run_dir / 'articulation.json'} describes "
-                             f"{len(articulation['frames'])} frames, the scene has {count}; "
-                             "delete it and run `surgsplat articulate RUN`")
-    chosen = run.scene.frames[index]
-    background = torch.tensor(run.config.train.background, dtype=torch.float32)
-    extractor = MeshExtractor(run.model, options, background)
-    tissue_only = FrameTime(index, chosen.time, tissue_only=True)
-    with torch.no_grad():
-        tissue = extractor.frame_mesh(chosen, tissue_only)
-        gaussians = run.model.state_at(FrameTime(index, chosen.time))
-    camera_to_world = chosen.camera.camera_to_world.double().numpy()
-    meta = write_sim_scene(folder, articulation, index, tissue, gaussians,
-                           view_direction=camera_to_world[:3, 2], right=camera_to_world[:3, 0],
-                           unit=run.scene.depth_unit)
-    console.print(f"simulation scene of frame {index} in {folder}: scene.xml (MJCF), tool.urdf, "
-                  f"tissue.obj ({meta['tissue_faces']} faces), gaussians.ply "
-                  f"({meta['gaussians']} Gaussians); scale {meta['scale_m_per_unit']:g} m per "
-                  f"{meta['scene_unit']}", markup=False, highlight=False)
+            meta = export_sim(run, sim, frame, options)
+            console.print(f"simulation scene of frame {frame} in {sim}: scene.xml (MJCF), "
+                          f"tool.urdf, tissue.obj ({meta['tissue_faces']} faces), gaussians.ply "
+                          f"({meta['gaussians']} Gaussians); scale "
+                          f"{meta['scale_m_per_unit']:g} m per {meta['scene_unit']}",
+                          markup=False, highlight=False)

@@ -9,90 +9,43 @@ import typer
 from rich.console import Console
 from rich.progress import TextColumn
 
-from surgsplat.cli.articulate_cmd import articulate_and_write
 from surgsplat.cli.progress import progress_bar
-from surgsplat.data.scene import load_scene
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.config import MethodConfig
-from surgsplat.methods.overrides import (apply_values, method_from_values, parse_assignment,
-                                         read_config_file)
+from surgsplat.methods.overrides import method_from_values, parse_assignment, read_config_file
 from surgsplat.methods.registry import PRESETS, method_config
-from surgsplat.train.checkpoint import previous_path
-from surgsplat.train.run import load_trained_run, read_run_config, read_run_scene, run_lock
-from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, SCENE_FILE, StepStats, Trainer
+from surgsplat.pipeline.train import after_training, check_new_run_folder, fit, start_training
+from surgsplat.train.run import read_run_config, run_lock
+from surgsplat.train.trainer import CHECKPOINT, StepStats, Trainer
 
 
-def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
-              iterations: int | None = None) -> Trainer:
-    """Build (or resume) a Trainer and run it to the end with a progress bar.
-
-    On resume the run's saved config is used (`config` only names the method), with
-    `iterations` replacing its length when given.
-    """
+def train_with_progress(config: MethodConfig, data: Path | None, out: Path, resume: bool,
+                        iterations: int | None = None) -> Trainer:
+    """`pipeline.train.train_run` with a progress bar and its notes printed."""
     console = Console()
-    checkpoint = out / CHECKPOINT
+
+    def note(text: str) -> None:
+        console.print(text, markup=False, highlight=False)
+
+    trainer = start_training(config, data, out, resume, iterations, note)
     if resume:
-        if not checkpoint.is_file():
-            raise SurgsplatError(f"{checkpoint}: nothing to resume (no checkpoint in {out})")
-        config = read_run_config(out)
-        scene = read_run_scene(out, data)
-    else:
-        if data is None:
-            raise SurgsplatError("--data is required unless --resume continues a run")
-        if checkpoint.is_file():
-            raise SurgsplatError(f"{out} already holds a run; pass --resume to continue it or "
-                                 "choose another --out")
-        scene = load_scene(data)
-    if iterations is not None:
-        if iterations <= 0:
-            raise SurgsplatError(f"--iters must be positive, got {iterations}")
-        config = apply_values(config, {"train": {"iterations": iterations}}, where="--iters")
-    trainer = Trainer(config, scene, out)
-    if resume:
-        damaged = trainer.load(checkpoint)
-        if damaged is not None:
-            console.print(f"{damaged}; continuing from the checkpoint kept before it, "
-                          f"{previous_path(checkpoint)}", markup=False, highlight=False)
-        if trainer.iteration > trainer.config.train.iterations:
-            raise SurgsplatError(f"{out} is at iteration {trainer.iteration}, past --iters "
-                                 f"{trainer.config.train.iterations}; a run cannot be shortened")
         console.print(f"resuming {out} at iteration {trainer.iteration}")
     with progress_bar(TextColumn("loss {task.fields[loss]:.4f}"),
                       TextColumn("PSNR {task.fields[psnr]:.2f}"),
                       TextColumn("{task.fields[gaussians]} Gaussians")) as bar:
-        task = bar.add_task(f"train {config.name}", total=config.train.iterations,
-                            completed=trainer.iteration, loss=0.0, psnr=0.0, gaussians=0)
+        task = bar.add_task(f"train {trainer.config.name}",
+                            total=trainer.config.train.iterations, completed=trainer.iteration,
+                            loss=0.0, psnr=0.0, gaussians=0)
 
         def report(stats: StepStats) -> None:
             bar.update(task, completed=stats.iteration, loss=stats.loss, psnr=stats.psnr,
                        gaussians=stats.num_gaussians)
 
-        try:
-            trainer.fit(report)
-        except KeyboardInterrupt:
-            raise SurgsplatError(f"interrupted at iteration {trainer.iteration}; checkpoint saved "
-                                 f"to {checkpoint}; continue with --resume") from None
+        fit(trainer, report)
     console.print(f"trained {trainer.iteration} iterations in {trainer.elapsed:.0f} s; "
                   f"{trainer.model.gaussians.num_gaussians} Gaussians; run folder: {out}")
-    if trainer.model.separates_tool:
-        try:
-            articulate_and_write(load_trained_run(out, data), console)
-        except SurgsplatError as err:
-            console.print(f"no articulation: {err}", markup=False, highlight=False)
+    after_training(trainer, data, note)
     return trainer
-
-
-def check_new_run_folder(out: Path) -> None:
-    """SurgsplatError unless `out` may receive a new run: absent, an empty folder, or a run
-    folder (its config.json and scene.txt present; one holding a checkpoint is then refused
-    with a hint to --resume). Any other folder holds a user's files that the run would
-    replace."""
-    if not out.is_dir() or not any(out.iterdir()):
-        return
-    if not ((out / CONFIG_FILE).is_file() and (out / SCENE_FILE).is_file()):
-        raise SurgsplatError(f"{out}: is not empty and is not a surgsplat run folder; choose a "
-                             "new or empty --out (a run writes config.json, scene.json, ... "
-                             "there, replacing files of the same name)")
 
 
 def build_method_config(method: str | None, config_file: Path | None,
@@ -141,11 +94,11 @@ def train_command(
             if method is not None and method != saved.name:
                 raise SurgsplatError(f"{out} holds a {saved.name!r} run; --method {method} does "
                                      "not apply to it")
-            train_run(saved, data, out, resume, iters)
+            train_with_progress(saved, data, out, resume, iters)
         return
     new_config = build_method_config(method, config, set_ or [])
     if data is None:
         raise SurgsplatError("--data is required unless --resume continues a run")
     check_new_run_folder(out)
     with run_lock(out, create=True):
-        train_run(new_config, data, out, resume, iters)
+        train_with_progress(new_config, data, out, resume, iters)

@@ -15,8 +15,10 @@ import sys
 import tempfile
 import threading
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,9 +27,13 @@ import numpy as np
 import tifffile
 import torch
 from PIL import Image, ImageFile
+from rich.console import Console
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                           TimeElapsedColumn, TimeRemainingColumn)
 from torch import Tensor
 
 from surgsplat.data.frame_store import CACHE_BYTES, FramePixels, FrameStore
+from surgsplat.data.image_files import check_image_file
 from surgsplat.data.layout import (DEPTH_DIR, DEPTH_SUFFIXES, FOV_FILE, IMAGE_SUFFIXES,
                                    IMAGES_DIR, INSIDE_VALUE, MASKS_DIR, META_FILE, POSES_FILE,
                                    TOOL_VALUE, Intrinsics, SceneMeta, list_files,
@@ -43,6 +49,8 @@ FOCAL_TOLERANCE = 1e-3
 """Largest relative difference between the hwf focal and scene.json's fx."""
 MIN_SIZE = 16
 """Smallest frame width and height accepted, pixels (one 16x16 rasterisation tile)."""
+DECODE_AHEAD = 4
+"""Frames per thread that load_scene decodes ahead of the one it fingerprints."""
 
 
 @dataclass(frozen=True)
@@ -207,15 +215,33 @@ def is_test_index(index: int) -> bool:
 
 _STDERR_LOCK = threading.Lock()
 """One redirection of file descriptor 2 at a time (frames decode on several threads)."""
+_WHOLE_PROCESS_CAPTURE = threading.Event()
+"""Set while `native_stderr_of_every_thread` collects what every thread's decoders print."""
 
 
 @contextmanager
 def native_stderr_to(sink: list[str]) -> Iterator[None]:
     """Collect what native libraries (libpng, libjpeg, libtiff inside OpenCV) print to the
     process's stderr during the block into `sink`, instead of letting it reach the user
-    without a file name."""
+    without a file name. Inside `native_stderr_of_every_thread` it collects nothing: that
+    block's sink receives the text."""
+    if _WHOLE_PROCESS_CAPTURE.is_set():
+        yield
+        return
     with _STDERR_LOCK:
         yield from _redirected_stderr(sink)
+
+
+@contextmanager
+def native_stderr_of_every_thread(sink: list[str]) -> Iterator[None]:
+    """Collect what native libraries print during the block, on any thread, into `sink`: one
+    redirection for many files decoded in parallel (per-file redirections would take turns)."""
+    with _STDERR_LOCK:
+        _WHOLE_PROCESS_CAPTURE.set()
+        try:
+            yield from _redirected_stderr(sink)
+        finally:
+            _WHOLE_PROCESS_CAPTURE.clear()
 
 
 def _redirected_stderr(sink: list[str]) -> Iterator[None]:
@@ -257,9 +283,12 @@ def verify_image_file(path: Path, what: str) -> None:
 
 def decode_image(path: Path, what: str) -> np.ndarray:
     """An image file's pixels as cv2.imread(IMREAD_UNCHANGED) gives them (BGR order, uint8 or
-    uint16, 2 or 3 dimensions), after verify_image_file; what the native decoders print is
+    uint16, 2 or 3 dimensions). A PNG or JPEG is first checked whole by its header and end
+    marker (`check_image_file`), other formats by a strict full decode (verify_image_file), so
+    no partly decoded (grey-filled) frame is ever used; what the native decoders print is
     passed on as a warning that names the file."""
-    verify_image_file(path, what)
+    if check_image_file(path, what) is None:
+        verify_image_file(path, what)
     printed: list[str] = []
     with native_stderr_to(printed):
         raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -442,6 +471,12 @@ class FrameFiles:
     depth_scale: float  # scene units per stored integer of PNG/TIFF depth
     size: tuple[int, int]  # (H, W) of the scene's first image
 
+    def named(self) -> list[tuple[Path, str]]:
+        """(file, what it should hold) of each of the frame's files."""
+        named = [(self.image, "an image"), (self.depth, "a depth map"),
+                 (self.mask, "a mask image")]
+        return [(path, what) for path, what in named if path is not None]
+
 
 def read_frame_files(files: FrameFiles, fov: np.ndarray | None
                      ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -467,6 +502,65 @@ def read_frame_files(files: FrameFiles, fov: np.ndarray | None
     return image, depth, tool
 
 
+def check_frame_headers(files: list[FrameFiles]) -> None:
+    """Every PNG and JPEG file of the frames checked without decoding (`check_image_file`:
+    present, not empty, not cut short) and its header's size compared with the first image's;
+    DataError naming the first bad file. Other formats are checked when decoded."""
+    for frame_files in files:
+        for path, what in frame_files.named():
+            header = check_image_file(path, what)
+            if header is not None:
+                _check_size(path, (header.height, header.width), frame_files.size)
+
+
+def decoded_frames(root: Path, files: list[FrameFiles], fov: np.ndarray | None
+                   ) -> Iterator[tuple[np.ndarray, np.ndarray | None, np.ndarray | None]]:
+    """read_frame_files of every frame, in frame order, decoded on `torch.get_num_threads()`
+    threads with a progress bar; the first bad file's DataError stops the decoding. What the
+    native decoders print meanwhile becomes one warning naming the scene folder."""
+    printed: list[str] = []
+    with native_stderr_of_every_thread(printed), validation_progress(len(files)) as advance:
+        yield from _in_parallel(lambda frame_files: read_frame_files(frame_files, fov), files,
+                                advance)
+    if printed:
+        lines = dict.fromkeys(line for text in printed for line in text.splitlines())
+        warnings.warn(f"{root}: the image decoders said, while its frames were checked: "
+                      f"{' '.join(lines)}", stacklevel=3)
+
+
+def _in_parallel(work: Callable, items: list, done: Callable[[], None]) -> Iterator:
+    """work(item) of every item, in order, computed on `torch.get_num_threads()` threads at
+    most DECODE_AHEAD items ahead of the consumer; done() after each. An exception of one item
+    is raised when its turn comes, and the items after it are dropped."""
+    workers = max(1, torch.get_num_threads())
+    pending: deque[Future] = deque()
+    with ThreadPoolExecutor(workers, thread_name_prefix="scene-check") as pool:
+        try:
+            for item in items:
+                pending.append(pool.submit(work, item))
+                if len(pending) >= DECODE_AHEAD * workers:
+                    yield pending.popleft().result()
+                    done()
+            while pending:
+                yield pending.popleft().result()
+                done()
+        finally:
+            for future in pending:
+                future.cancel()
+
+
+@contextmanager
+def validation_progress(total: int) -> Iterator[Callable[[], None]]:
+    """A transient progress bar of the frames checked, on an interactive console only; yields
+    the function that counts one more frame."""
+    console = Console(stderr=False)
+    with Progress(TextColumn("[bold]checking frames"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
+                  disable=not console.is_terminal) as bar:
+        task = bar.add_task("checking frames", total=total)
+        yield lambda: bar.advance(task)
+
+
 def frame_pixels(image: np.ndarray, depth: np.ndarray | None, tool: np.ndarray | None,
                  fov: Tensor) -> FramePixels:
     """The tensors of a frame from what read_frame_files gave (fov: [H, W] bool, shared)."""
@@ -489,10 +583,12 @@ def load_scene(root: str | Path, depth_scale: float | None = None,
                cache_bytes: int = CACHE_BYTES) -> Scene:
     """Load and validate a scene folder.
 
-    Every frame's files are decoded and checked here, one frame at a time, so that a bad file
-    stops the load with a DataError naming it; the frames then decode again from their files
-    when used, through a cache of at most `cache_bytes` (whole clips that fit stay cached from
-    this first pass), so memory does not grow with the clip's length.
+    Every file's header, size and end marker are checked first (seconds for a long clip), then
+    every frame is decoded and checked on `torch.get_num_threads()` threads with a progress
+    bar, so that a bad file stops the load with a DataError naming it before any training; the
+    frames then decode again from their files when used, through a cache of at most
+    `cache_bytes` (whole clips that fit stay cached from this first pass), so memory does not
+    grow with the clip's length.
 
     The scene's fingerprint is a BLAKE2b digest of what was decoded: the poses, the camera
     matrix and every frame's 8-bit image, depth and masks, so a run can tell its own scene from
@@ -546,18 +642,19 @@ def load_scene(root: str | Path, depth_scale: float | None = None,
                         mask=mask_files[index] if mask_files else None,
                         depth_scale=meta.depth_scale, size=size)
              for index, image_path in enumerate(image_files)]
+    check_frame_headers(files)
     store = FrameStore(lambda index: frame_pixels(*read_frame_files(files[index], fov_np), fov),
                        cache_bytes)
     frames = []
-    for index, frame_files in enumerate(files):
-        arrays = read_frame_files(frame_files, fov_np)
-        for array in arrays:
-            if array is not None:
-                digest.update(array.tobytes())
-        store.put(index, frame_pixels(*arrays, fov))
-        frames.append(Frame.stored(index=index, time=index / count,
-                                   is_test=is_test_index(index), camera=cameras[index],
-                                   store=store))
+    with closing(decoded_frames(root, files, fov_np)) as decoded:
+        for index, arrays in enumerate(decoded):
+            for array in arrays:
+                if array is not None:
+                    digest.update(array.tobytes())
+            store.put(index, frame_pixels(*arrays, fov))
+            frames.append(Frame.stored(index=index, time=index / count,
+                                       is_test=is_test_index(index), camera=cameras[index],
+                                       store=store))
     near, far = (float(v) for v in poses[0, 15:17])
     return Scene(root=root, frames=frames, meta=meta, near=near, far=far,
                  has_depth=bool(depth_files), has_masks=bool(mask_files), has_fov=has_fov,

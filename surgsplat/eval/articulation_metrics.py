@@ -26,7 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from surgsplat.data.phantom.kinematics import TOOL_KINEMATICS_FILE
-from surgsplat.errors import DataError
+from surgsplat.errors import DataError, SurgsplatError
+from surgsplat.eval.metric_family import EvalOptions, MetricFamily
+from surgsplat.export.articulation import read_articulation
+from surgsplat.train.run import TrainedRun
 
 MIN_TOOL_FRACTION = 0.005
 """A frame shows the tool when its tool mask covers at least this fraction of its pixels."""
@@ -43,6 +46,44 @@ def read_tool_kinematics(scene_root: Path) -> dict | None:
     except (OSError, ValueError, KeyError, IndexError, TypeError) as err:
         raise DataError(path, f"is not readable tool kinematics ({err})") from None
     return truth
+
+
+class ArticulationFamily(MetricFamily):
+    """The metrics of the module docstring, when the scene has true tool kinematics and the run
+    a tool field: RUN/articulation.json, estimated (`EvalOptions.estimate_articulation`) when
+    missing; an estimate that cannot be made gives a note instead."""
+
+    name = "articulation"
+
+    def __init__(self, run: TrainedRun, options: EvalOptions):
+        super().__init__(run, options)
+        self.run = run
+        self.estimate = options.estimate_articulation
+
+    def pooled(self) -> dict:
+        run = self.run
+        truth = read_tool_kinematics(run.scene.root)
+        if truth is None or run.model.tool_motion() is None:
+            return {}
+        estimate = read_articulation(run.run_dir)
+        if estimate is None:
+            try:
+                estimate = self.estimate(run)
+            except SurgsplatError as err:
+                return {"articulation_note": str(err)}
+        frames = [f.index for f in run.scene.frames
+                  if float(f.tool.float().mean()) >= MIN_TOOL_FRACTION]
+        return articulation_metrics(estimate, truth, frames,
+                                    [f.index for f in run.scene.test_frames])
+
+    def conventions(self) -> dict[str, str]:
+        return {"articulation": "hinge_axis_error_deg (orientation-free, mean), "
+                                "hinge_offset_mm, jaw_angle_rmse_deg (axis sign and jaw order "
+                                "aligned to the truth), jaw_opening_rmse_deg: "
+                                "RUN/articulation.json vs gt/tool_kinematics.json over all "
+                                "frames whose tool mask covers >= 0.5% of the image "
+                                "(jaw_angle_rmse_deg_test: the test frames among them; "
+                                "*_estimated: the frames estimated from their own observation)"}
 
 
 def articulation_metrics(estimate: dict, truth: dict, frames: list[int],

@@ -15,8 +15,9 @@ the scaled prediction s_c p against the truth t:
 - shading_error: the same scaled RMSE of the illumination map L_t against gt/shading (one
   channel).
 
-A method without a decomposition is scored as the naive baseline: its rendered colour as the
-reflectance and a constant illumination map.
+A method decomposes when a component renders the standard decomposition channels
+(`model.channels.REFLECTANCE`, `ILLUMINATION`). A method without a decomposition is scored as the
+naive baseline: its rendered colour as the reflectance and a constant illumination map.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from torch import Tensor
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.phantom.generate import ALBEDO_DIR, SHADING_DIR
 from surgsplat.data.scene import Frame, read_image, read_npy
+from surgsplat.model.channels import ILLUMINATION, REFLECTANCE
 
 CONVENTIONS = {
     "reflectance_error": "RMSE of the rendered reflectance (rendered colour for methods without "
@@ -71,10 +73,10 @@ class DecompositionScores:
         albedo_path = scene_root / ALBEDO_DIR / f"{frame_stem(frame.index)}.png"
         if not albedo_path.is_file():
             return
-        self.decomposed = "reflectance" in extras
-        self.reflectance.append(extras.get("reflectance", rgb).double())
+        self.decomposed = REFLECTANCE in extras
+        self.reflectance.append(extras.get(REFLECTANCE, rgb).double())
         self.albedo.append(torch.from_numpy(read_image(albedo_path)).double() / 255.0)
-        illumination = extras.get("illumination")
+        illumination = extras.get(ILLUMINATION)
         self.illumination.append(torch.ones(rgb.shape[:2], dtype=torch.float64)
                                  if illumination is None else illumination[..., 0].double())
         shading_path = scene_root / SHADING_DIR / f"{frame_stem(frame.index)}.npy"

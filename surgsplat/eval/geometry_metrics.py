@@ -30,6 +30,9 @@ from torch import Tensor
 from surgsplat.image.depth import valid_depth_pixels
 
 FSCORE_THRESHOLD_MM = 1.0
+GEOMETRY_KEYS = ("chamfer_mm", "p2s_mean_mm", "p2s_median_mm", "p2s_p95_mm", "fscore_1mm")
+"""The metrics `geometry_metrics` gives; metrics.json has them of the rendered depth back-projected
+(no prefix) and of the exported mesh (`mesh_`)."""
 _CANDIDATES = 8  # nearest triangle centroids checked exactly before the exactness test
 _CHUNK = 1 << 20  # point-triangle pairs evaluated at once
 

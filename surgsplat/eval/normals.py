@@ -22,14 +22,18 @@ MIN_ALPHA = 0.5
 def surface_normals(output: RenderOutput, K: Tensor) -> tuple[Tensor, Tensor, str]:
     """Unit camera-space normals [H, W, 3], valid [H, W] bool, and their source ("rendered"
     or "depth") of a render with intrinsics K [3, 3]."""
-    covered = output.alpha > MIN_ALPHA
     if "normal" in output.extras:
-        normals = output.extras["normal"]
-        length = normals.norm(dim=-1)
-        unit = normals / length.clamp_min(1e-12)[..., None]
-        return unit, covered & (length > 1e-6), "rendered"
+        return (*rendered_normals(output.extras["normal"], output.alpha), "rendered")
     normals, valid = depth_normals(output.depth, K)
-    return normals, valid & covered, "depth"
+    return normals, valid & (output.alpha > MIN_ALPHA), "depth"
+
+
+def rendered_normals(normals: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
+    """A rendered (alpha-blended) normal map [H, W, 3] made unit, and valid [H, W] bool: the
+    pixels covered (alpha [H, W] above MIN_ALPHA) where the blend is not zero."""
+    length = normals.norm(dim=-1)
+    unit = normals / length.clamp_min(1e-12)[..., None]
+    return unit, (alpha > MIN_ALPHA) & (length > 1e-6)
 
 
 def normal_angle_deg(normals: Tensor, gt_normals: Tensor, mask: Tensor) -> Tensor:

@@ -1,7 +1,8 @@
 """A trained run's tool articulation (shaft + two revolute jaws), RUN/articulation.json.
 
-The run's tool field gives the canonical tool (its tool Gaussians) and one rigid pose per
-frame. The jaws' own motion is estimated after training (`model.articulation`) from each
+The run's model gives the canonical tool (the Gaussians its components mark as tool,
+`SplatModel.tool_members`) and one rigid pose per frame (its `tool_motion`, a capability a tool
+field declares; `model.capabilities`). The jaws' own motion is estimated after training (`model.articulation`) from each
 training frame's observed tool points: its tool-mask pixels back-projected with its depth, mapped
 into the canonical tool frame by the inverse of the tool field's pose. Test frames are not used;
 each jaw's angles are interpolated (linearly in frame index) between the frames that saw that
@@ -36,8 +37,7 @@ from surgsplat.image.pinhole import backproject
 from surgsplat.model.articulation import (JAW_A, JAW_B, PART_NAMES, SHAFT, Articulation,
                                           ArticulationOptions, Observation,
                                           estimate_articulation)
-from surgsplat.model.physics import SEMANTIC_KEY
-from surgsplat.model.tool_field import ToolField
+from surgsplat.model.capabilities import ToolMotion, required
 from surgsplat.train.run import TrainedRun
 
 ARTICULATION_FILE = "articulation.json"
@@ -49,18 +49,16 @@ MIN_OPACITY = 0.05
 """Tool Gaussians less opaque than this are left out."""
 
 
-def tool_field(run: TrainedRun) -> ToolField:
-    """The run's tool field; SurgsplatError when its method has none."""
-    for component in run.model.components.values():
-        if isinstance(component, ToolField):
-            return component
-    raise SurgsplatError(f"{run.run_dir}: method {run.config.name!r} has no tool field, so it "
-                         "has no tool to articulate (train e.g. --method physiosplat)")
+def tool_motion(run: TrainedRun) -> ToolMotion:
+    """The run's rigid tool motion; SurgsplatError when its method has none."""
+    return required(run.model.tool_motion(),
+                    f"{run.run_dir}: method {run.config.name!r} has no tool field, so it has no "
+                    "tool to articulate (train e.g. --method physiosplat)")
 
 
-def tool_pose(field: ToolField, index: int) -> np.ndarray:
-    """[4, 4] float64 the tool field's pose of frame `index` (canonical tool -> world)."""
-    rotvec, translation = field.pose(index)
+def tool_pose(motion: ToolMotion, index: int) -> np.ndarray:
+    """[4, 4] float64 the tool's pose of frame `index` (canonical tool -> world)."""
+    rotvec, translation = motion.pose(index)
     pose = np.eye(4)
     pose[:3, :3] = Rotation.from_rotvec(rotvec.detach().double().numpy()).as_matrix()
     pose[:3, 3] = translation.detach().double().numpy()
@@ -70,12 +68,14 @@ def tool_pose(field: ToolField, index: int) -> np.ndarray:
 def canonical_tool(run: TrainedRun) -> np.ndarray:
     """[K, 3] float64 canonical centres of the run's opaque tool Gaussians (seeded subsample)."""
     params = run.model.gaussians.params
-    tool = (params[SEMANTIC_KEY] < 0) & (torch.sigmoid(params["opacity_logits"]) >= MIN_OPACITY)
+    opaque = torch.sigmoid(params["opacity_logits"]) >= MIN_OPACITY
+    tool = run.model.tool_members()
+    tool = opaque & (torch.zeros_like(opaque) if tool is None else tool)
     points = params["means"][tool].detach().double().numpy()
     return _subsample(points, MAX_CANONICAL_POINTS, seed=0)
 
 
-def observe(run: TrainedRun, field: ToolField) -> list[Observation]:
+def observe(run: TrainedRun, motion: ToolMotion) -> list[Observation]:
     """The training frames' observed tool points in the canonical tool frame."""
     observations = []
     for frame in run.scene.train_frames:
@@ -87,7 +87,7 @@ def observe(run: TrainedRun, field: ToolField) -> list[Observation]:
             continue
         world = backproject(frame.depth, frame.camera.K, mask, frame.camera.camera_to_world)
         world = _subsample(world.double().numpy(), MAX_OBSERVED_POINTS, seed=frame.index)
-        pose = tool_pose(field, frame.index)
+        pose = tool_pose(motion, frame.index)
         observations.append(Observation(frame.index, (world - pose[:3, 3]) @ pose[:3, :3]))
     return observations
 
@@ -95,14 +95,14 @@ def observe(run: TrainedRun, field: ToolField) -> list[Observation]:
 def articulate(run: TrainedRun,
                options: ArticulationOptions = ArticulationOptions()) -> dict:
     """The run's articulation.json content (see the module docstring)."""
-    field = tool_field(run)
+    motion = tool_motion(run)
     canonical = canonical_tool(run)
     try:
-        estimate = estimate_articulation(canonical, observe(run, field), options)
+        estimate = estimate_articulation(canonical, observe(run, motion), options)
     except ValueError as err:
         raise SurgsplatError(f"{run.run_dir}: cannot articulate the tool: {err}") from None
-    return describe(estimate, [tool_pose(field, i) for i in
-                                          range(len(run.scene.frames))], run.scene.depth_unit)
+    return describe(estimate, [tool_pose(motion, i) for i in range(len(run.scene.frames))],
+                    run.scene.depth_unit)
 
 
 def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict:

@@ -1,9 +1,8 @@
 """Per-frame tissue meshes of a trained run, in the scene's unit and world frame.
 
 Two routes, chosen by the method:
-- a method with a signed distance field (a component offering `signed_distance`, `box` and
-  `centres`, the canonical centres where it meets the Gaussians, such as Endo-GSG's `SDFField`):
-  marching cubes (scikit-image) of the canonical SDF once (with `fit_radius` > 0, each vertex
+- a method with a signed distance field (the model's `signed_distance_field`, a capability a
+  component declares, such as Endo-GSG's SDF; `model.capabilities`): marching cubes (scikit-image) of the canonical SDF once (with `fit_radius` > 0, each vertex
   then moved along its normal onto the canonical tissue Gaussians near it, `fit_to_points`; off
   by default: the mesh is the SDF's own surface), the vertices carried to the frame's time by
   the Gaussians' own motion (each vertex moves with the inverse-distance-weighted displacement
@@ -38,7 +37,6 @@ from surgsplat.fields.level_set import marching_cubes, mesh_library
 from surgsplat.image.pinhole import backproject_camera, inside_image, project_points
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import SplatModel, render_frame
-from surgsplat.model.physics import tissue_members
 from surgsplat.render.render import RenderOutput
 
 MESH_FORMATS = ("ply", "obj", "glb")
@@ -79,14 +77,6 @@ class FrameMesh:
     route: str  # "sdf" or "depth"
 
 
-def sdf_component(model: SplatModel):
-    """The model's component that has a signed distance field, or None."""
-    for component in model.components.values():
-        if callable(getattr(component, "signed_distance", None)):
-            return component
-    return None
-
-
 class MeshExtractor:
     """Meshes of any frame of one trained model; the canonical SDF mesh is extracted once."""
 
@@ -95,7 +85,7 @@ class MeshExtractor:
         self.model = model
         self.options = options
         self.background = background
-        self.field = sdf_component(model)
+        self.field = model.signed_distance_field()
         self._canonical: tuple[np.ndarray, np.ndarray, float] | None = None
         self._weights: tuple[np.ndarray, np.ndarray] | None = None  # canonical vertices' anchors
 
@@ -134,13 +124,13 @@ class MeshExtractor:
 
     def _tissue_gaussians(self) -> tuple[np.ndarray, np.ndarray]:
         """Canonical centres [N, 3] and rendered opacities [N] of the tissue Gaussians (all
-        Gaussians unless a tool field marks some as tool)."""
+        Gaussians unless a component marks some as tool)."""
         params = self.model.gaussians.params
         opacity = torch.sigmoid(params["opacity_logits"].detach())
         factor = self.model.opacity_factor()
         if factor is not None:
             opacity = opacity * factor
-        tissue = tissue_members(params)
+        tissue = self.model.tissue_members()
         keep = slice(None) if tissue is None else tissue
         return self._canonical_centres()[keep].numpy(), opacity[keep].numpy()
 

@@ -1,6 +1,8 @@
 """One self-contained HTML report of one or more runs: metrics with their conventions, training
 curves (matplotlib, inlined as PNG), and per test frame the ground truth, the render, an error
-heat map, the depth and the normals. With several runs: a comparison table (with each run's
+heat map and every other channel the model declares (`SplatModel.channel_descriptors`: the
+depth, the normals and those its components add), each as its descriptor says
+(`export.channel_image`; the depth over the frame's measured depth range). With several runs: a comparison table (with each run's
 scene) and overlaid curves; runs are named by their folders relative to the folder holding them
 all (a/run and b/run for DIR/a/run and DIR/b/run, as `batch` writes them).
 
@@ -24,15 +26,16 @@ import torch
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.errors import DataError, SurgsplatError
-from surgsplat.eval.normals import surface_normals
-from surgsplat.eval.run_metrics import GEOMETRY_KEYS, EvalOptions, evaluate_run
-from surgsplat.export.video import colorize_depth, colorize_normals, to_uint8
+from surgsplat.eval.geometry_metrics import GEOMETRY_KEYS
+from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions, evaluate_run
+from surgsplat.export.channel_image import channel_image, colormap_image, percentile_range
+from surgsplat.export.video import to_uint8
+from surgsplat.model.channels import DEPTH, RGB, ChannelDescriptor, Colormap
 from surgsplat.model.component import FrameTime
-from surgsplat.model.dynamic import render_frame
+from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.train.run import TrainedRun, load_trained_run
 from surgsplat.train.trainer import LOG_FILE, read_log
 
-METRICS_FILE = "metrics.json"
 COMPARED = ("psnr_tissue", "psnr_zeroed", "ssim", "lpips", "depth_rmse_mm",
             "normal_error_deg_median", "chamfer_mm", "p2s_median_mm", "fscore_1mm",
             "train_seconds", "num_gaussians", "fps", "peak_rss_mb")
@@ -49,7 +52,8 @@ class RunSummary:
     scene: Path  # the scene folder the run was trained on
     metrics: dict
     log: list[dict]  # train_log.jsonl entries (see read_log)
-    frames: list[tuple[int, np.ndarray]]  # (frame index, uint8 RGB strip [H, 5 W, 3])
+    panels: list[str]  # the channels shown after the render and its error (`strip_channels`)
+    frames: list[tuple[int, np.ndarray]]  # (frame index, uint8 RGB strip [H, (3 + panels) W, 3])
 
 
 def short_names(paths: list[Path]) -> list[str]:
@@ -82,24 +86,29 @@ def summarise_run(run_dir: Path, name: str, max_frames: int) -> RunSummary:
     log = read_log(Path(run_dir) / LOG_FILE)
     frames = [(frame.index, frame_strip(run, frame)) for frame in run.scene.test_frames[:max_frames]]
     return RunSummary(name=name, method=run.config.name, scene=run.scene.root, metrics=metrics,
-                      log=log, frames=frames)
+                      log=log, panels=[channel.name for channel in strip_channels(run.model)],
+                      frames=frames)
+
+
+def strip_channels(model: SplatModel) -> list[ChannelDescriptor]:
+    """The channels a frame strip shows after the render and its error: every channel the model
+    declares but the colour."""
+    return [channel for channel in model.channel_descriptors() if channel.name != RGB]
 
 
 def frame_strip(run: TrainedRun, frame) -> np.ndarray:
-    """uint8 RGB [H, 5 W, 3]: ground truth | render | error heat map | depth | normals."""
+    """uint8 RGB [H, (3 + C) W, 3]: ground truth | render | error heat map | the C
+    `strip_channels` (depth over the frame's measured depth range when it has depth)."""
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
     out = render_frame(run.model, frame.camera, FrameTime(frame.index, frame.time), background)
     rgb = out.rgb.clamp(0, 1).numpy()
-    error = np.abs(rgb - frame.image.numpy()).mean(-1) / ERROR_RANGE
-    heat = cv2.applyColorMap(to_uint8(np.clip(error, 0, 1)), cv2.COLORMAP_INFERNO)[..., ::-1]
+    error = np.abs(rgb - frame.image.numpy()).mean(-1)
+    heat = colormap_image(error, Colormap.INFERNO, 0.0, ERROR_RANGE)
     heat = np.where(frame.tissue.numpy()[..., None], heat, 0).astype(np.uint8)
-    values = frame.depth[frame.depth > 0] if frame.depth is not None else out.depth[out.alpha > 0.5]
-    near, far = (float(values.quantile(0.01)), float(values.quantile(0.99))) if values.numel() \
-        else (0.0, 1.0)
-    normals, valid, _ = surface_normals(out, frame.camera.K)
+    ranges = {} if frame.depth is None else {DEPTH: percentile_range(frame.depth[frame.depth > 0])}
     return np.concatenate([to_uint8(frame.image.numpy()), to_uint8(rgb), heat,
-                           colorize_depth(out.depth.numpy(), near, far),
-                           colorize_normals(normals.numpy(), valid.numpy())], axis=1)
+                           *(channel_image(out, channel, frame.camera.K, ranges.get(channel.name))
+                             for channel in strip_channels(run.model))], axis=1)
 
 
 def png_data_uri(image: np.ndarray) -> str:
@@ -240,8 +249,8 @@ def write_report(run_dirs: list[Path], out: Path, max_frames: int = 4) -> Path:
         for index, strip in run.frames:
             parts.append(f"<figure><img alt='test frame {index}' src='{png_data_uri(strip)}'>"
                          f"<figcaption>test frame {index}: ground truth | render | error "
-                         f"(|render - truth|, 0 to {ERROR_RANGE}, tissue only) | depth | normals"
-                         f"</figcaption></figure>")
+                         f"(|render - truth|, 0 to {ERROR_RANGE}, tissue only) | "
+                         f"{html.escape(' | '.join(run.panels))}</figcaption></figure>")
     parts.append("</body></html>")
     write_text_atomic(Path(out), "\n".join(parts))
     return Path(out)

@@ -5,9 +5,10 @@ shows is rendered by surgsplat's own CPU renderer at the browser's camera and ca
 sent as the scene background. While the camera moves, frames are rendered at a lower resolution
 (`moving_scale`); once it rests, the full-resolution frame follows. The viewer starts at the
 first training camera; a time slider with play/pause scrubs through the clip, and a channel
-selector shows the colour, depth or normals, the tool-free colour of a method that separates the
-tool (its tissue-only render), and any extra channel the method renders (e.g. reflectance or
-illumination, when its components add one).
+selector shows any channel the model declares (`SplatModel.channel_descriptors`: the colour,
+depth and normals, and those its components add, e.g. reflectance or illumination), each as its
+descriptor says (`export.channel_image`), and the tool-free colour of a method that separates the
+tool (its tissue-only render).
 
 viser's client is bundled with the Python package and served from this machine: the page needs
 no internet access. Camera poses follow viser's convention, P_world = R p_camera + t with OpenCV
@@ -27,18 +28,15 @@ import torch
 
 from surgsplat.data.scene import Camera
 from surgsplat.errors import SurgsplatError
-from surgsplat.eval.normals import surface_normals
-from surgsplat.export.video import colorize_depth, colorize_normals, to_uint8
+from surgsplat.export.channel_image import channel_image
+from surgsplat.model.channels import RGB
 from surgsplat.model.component import FrameTime
-from surgsplat.model.dynamic import render_frame
+from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.run import TrainedRun
 
-BASE_CHANNELS = ("rgb", "depth", "normal")
 TOOL_FREE = "tool_free"
 """Channel: the colour of the tissue-only render, for methods that separate the tool."""
-SHOWN_EXTRAS = ("reflectance", "illumination")
-"""Render extras of three colour channels the viewer offers when a method renders them."""
 
 
 @dataclass
@@ -51,22 +49,23 @@ class ViewerFrame:
     seconds: float  # time it took to render and colour-map
 
 
+def viewer_channels(model: SplatModel) -> list[str]:
+    """The channels the viewer offers for `model`: every channel it declares, and TOOL_FREE
+    when it separates the tool."""
+    names = [channel.name for channel in model.channel_descriptors()]
+    return names + [TOOL_FREE] if model.separates_tool else names
+
+
 def view_image(run: TrainedRun, camera: Camera, index: int, channel: str) -> np.ndarray:
-    """uint8 RGB [H, W, 3] of `channel` of `run` at frame `index` seen by `camera`."""
+    """uint8 RGB [H, W, 3] of `channel` (one of `viewer_channels`) of `run` at frame `index`
+    seen by `camera`."""
     frame = run.scene.frames[index]
     background = torch.tensor(run.config.train.background, dtype=torch.float32)
     when = FrameTime(index, frame.time, tissue_only=channel == TOOL_FREE)
     out = render_frame(run.model, camera, when, background)
-    if channel == "depth":
-        values = out.depth[out.alpha > 0.5]
-        near, far = (float(values.quantile(0.01)), float(values.quantile(0.99))) \
-            if values.numel() else (0.0, 1.0)
-        return colorize_depth(out.depth.numpy(), near, far)
-    if channel == "normal":
-        normals, valid, _ = surface_normals(out, camera.K)
-        return colorize_normals(normals.numpy(), valid.numpy())
-    source = out.rgb if channel in ("rgb", TOOL_FREE) else out.extras[channel]
-    return to_uint8(source.clamp(0, 1).numpy())
+    shown = RGB if channel == TOOL_FREE else channel
+    descriptor = next(c for c in run.model.channel_descriptors() if c.name == shown)
+    return channel_image(out, descriptor, camera.K)
 
 
 def matrix_to_wxyz(rotation: np.ndarray) -> np.ndarray:
@@ -123,19 +122,13 @@ class RunViewer:
         self.time_slider = gui.add_slider("frame", min=0, max=count - 1, step=1, initial_value=0)
         self.play = gui.add_checkbox("play", initial_value=False)
         self.fps = gui.add_number("play fps", initial_value=fps, min=0.5, max=60.0, step=0.5)
-        self.channel = gui.add_dropdown("channel", self.available_channels(), initial_value="rgb")
+        self.channel = gui.add_dropdown("channel", viewer_channels(run.model), initial_value=RGB)
         for handle in (self.time_slider, self.channel):
             handle.on_update(lambda _: self.refresh_all())
         self.server.on_client_connect(self._connect)
         self._stop = threading.Event()
         self._player = threading.Thread(target=self._play_loop, daemon=True)
         self._player.start()
-
-    def available_channels(self) -> list[str]:
-        frame = self.run.scene.frames[0]
-        probe = render_frame(self.run.model, frame.camera, FrameTime(frame.index, frame.time))
-        tool_free = [TOOL_FREE] if self.run.model.separates_tool else []
-        return [*BASE_CHANNELS, *tool_free, *(name for name in SHOWN_EXTRAS if name in probe.extras)]
 
     # ---- cameras ----
     def _connect(self, client) -> None:

@@ -13,12 +13,14 @@ learning rates by the scene extent.
 
 As a component (`surgsplat.model.component`), a field sets its bounds from the initial points,
 owns its per-Gaussian attributes and network parameters, moves the Gaussians in `transform`, and
-offers its regularisers as loss terms (weighted by the method's `losses` config).
+offers its regularisers as loss terms (weighted by the method's `losses` config); its volume term
+covers the tissue Gaussians, as the method's components declare them (`model.membership`).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import torch
@@ -26,7 +28,7 @@ from torch import Tensor
 
 from surgsplat.model.component import Component, FrameTime, SetupContext
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.model.physics import tissue_members
+from surgsplat.model.membership import tissue_members
 from surgsplat.model.state import GaussianState
 
 GEOMETRY_CHANNELS = 10
@@ -90,6 +92,7 @@ class DeformationField(Component, ABC):
         super().__init__()
         self.register_buffer("bounds_lo", torch.full((3,), -1.0))
         self.register_buffer("bounds_hi", torch.full((3,), 1.0))
+        self._method: tuple[Component, ...] = ()  # the method's components (plain references)
 
     def set_bounds(self, lo: Tensor, hi: Tensor) -> None:
         """Set the canonical point cloud's axis-aligned bounding box, lo [3] and hi [3]."""
@@ -107,6 +110,9 @@ class DeformationField(Component, ABC):
         return 0.5 * (self.bounds_hi - self.bounds_lo).norm().clamp_min(1e-6)
 
     # ---- the component contract ----
+    def bind(self, components: Mapping[str, Component]) -> None:
+        self._method = tuple(components.values())
+
     def setup(self, context: SetupContext) -> None:
         self.set_bounds(context.points.min(dim=0).values, context.points.max(dim=0).values)
 
@@ -137,12 +143,12 @@ class DeformationField(Component, ABC):
 
     def volume_loss(self, gaussians: GaussianModel, t: float) -> Tensor:
         """Volume preservation (PhysioSplat Eq. 6): the sum over tissue Gaussians (every
-        Gaussian when there is no semantic logit) of (det J - 1)^2, as the paper's weight is a
+        Gaussian when no component of the method models a tool) of (det J - 1)^2, as the paper's weight is a
         weight of a sum, estimated without bias by the mean over `volume_samples()` random
         ones times their count; J = I + d(mean offset)/dx the deformation's spatial Jacobian at
         the canonical mean, by central differences of step `volume_step()` (scene units)."""
         params = gaussians.params
-        tissue = tissue_members(params)
+        tissue = tissue_members(self._method, gaussians)
         candidates = (torch.arange(gaussians.num_gaussians) if tissue is None
                       else tissue.nonzero()[:, 0])
         if candidates.numel() == 0:

@@ -16,8 +16,8 @@ loss holds. Gradients of f are taken by tetrahedral finite differences (as Neura
 which needs no double backward through the grid lookup.
 
 The coupling, as the component contract expresses it:
-- opacity: every tissue Gaussian's opacity (all of them, unless a tool field marks some as tool,
-  `model.physics.tissue_members`) is multiplied by the bell Phi_beta(f(mu)) = 4 s (1 - s),
+- opacity: every tissue Gaussian's opacity (all of them, unless a component of the method marks
+  some as tool, `model.membership`) is multiplied by the bell Phi_beta(f(mu)) = 4 s (1 - s),
   s = sigmoid(beta f(mu)) (Eq. 4; beta learnable), also given to densification as
   `opacity_factor`, so pruning, cloning and resets act on the rendered opacity;
 - losses on a random subset of tissue Gaussians per step: "eikonal" (Eq. 13), "projection"
@@ -35,12 +35,14 @@ would then never pull a drifting mean back, nor would the field learn where the 
 full phantom that lost the mesh over half the scene and 21 dB, issue 28).
 
 Sign convention: f > 0 in front of the surface (the camera side, free space), f < 0 behind it.
-`setup` fits the field to the initial point cloud along the first camera's rays before training.
+The field is the method's `signed_distance_field` (`model.capabilities`), from which mesh anchors
+and the mesh export extract the surface. `setup` fits the field to the initial point cloud along the first camera's rays before training.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import torch
@@ -52,7 +54,7 @@ from surgsplat.image.pinhole import inside_image, project_points
 from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
                                        RenderContext, SetupContext)
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.model.physics import tissue_members
+from surgsplat.model.membership import tissue_members
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import quaternion_to_matrix
 
@@ -120,6 +122,7 @@ class SDFField(Component):
         self.log_beta = nn.Parameter(torch.zeros(()))
         self.register_buffer("box", torch.tensor([[-1.0] * 3, [1.0] * 3]))
         self.register_buffer("initial_beta", torch.ones(()))  # 1 / scene units, set by setup
+        self._method: tuple[Component, ...] = ()  # the method's components (plain references)
 
     # ---- the field ----
     def unit(self) -> Tensor:
@@ -158,6 +161,12 @@ class SDFField(Component):
         return 4.0 * s * (1.0 - s)
 
     # ---- the component contract ----
+    def bind(self, components: Mapping[str, Component]) -> None:
+        self._method = tuple(components.values())
+
+    def signed_distance_field(self) -> "SDFField":
+        return self
+
     def setup(self, context: SetupContext) -> None:
         points = context.points
         lo, hi = points.min(dim=0).values, points.max(dim=0).values
@@ -201,10 +210,10 @@ class SDFField(Component):
         return groups
 
     def tissue_bell(self, gaussians: GaussianModel) -> Tensor:
-        """[N] the bell of f at the canonical centres; 1 for Gaussians that a tool field of the
+        """[N] the bell of f at the canonical centres; 1 for Gaussians that a component of the
         method models as tool (the field describes the tissue surface)."""
         factor = self.bell(self.signed_distance(gaussians.params["means"]))
-        tissue = tissue_members(gaussians.params)
+        tissue = tissue_members(self._method, gaussians)
         return factor if tissue is None else torch.where(tissue, factor, 1.0)
 
     def transform(self, state: GaussianState, gaussians: GaussianModel,
@@ -221,7 +230,7 @@ class SDFField(Component):
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         params = context.gaussians.params
-        tissue = tissue_members(params)
+        tissue = tissue_members(self._method, context.gaussians)
         rows = (torch.arange(params["means"].shape[0]) if tissue is None
                 else tissue.nonzero()[:, 0])
         pick = rows[torch.randperm(rows.numel())[:self.config.samples_per_step]]

@@ -6,28 +6,31 @@
   move): the sum over tissue Gaussians of each one's weighted sum over its neighbours, estimated
   without bias from `anchors` random tissue Gaussians (their mean times the tissue count).
 - "collision" (Eq. 5): the sum over tissue Gaussians of ReLU(epsilon - Psi(mu_i(t)))^2, Psi the
-  signed distance to the convex hull of the tool Gaussians at time t (`model.physics`), whose
-  planes are fixed for the step (the gradient pushes the tissue, not the tool).
+  signed distance to the tool proxy at time t (balls around the tool Gaussians; the paper's
+  convex hull spanned the tissue a grasper holds, see `model.physics`), fixed for the step (the
+  gradient pushes the tissue, not the tool).
 Both are sums over Gaussians as in the paper (whose weights are weights of sums), at one frame
 per step (the paper's sum over t is the sum over steps). Lengths are in units of the scene
 extent (`SetupContext.scene_extent`), so the energies, their weights and the margin epsilon
 (a fraction of the extent) do not depend on the scene's unit: an energy in extent^2 is the
 energy in scene units^2 divided by extent^2.
 Volume preservation (Eq. 6) is the deformation field's "volume" term (`fields.deformation`),
-since it needs the field's Jacobian. Tissue and tool come from the semantic logit of the tool
-field; without one, every Gaussian is tissue and there is no collision.
+since it needs the field's Jacobian. Tissue and tool are as the method's components declare them
+(`model.membership`); without a tool, every Gaussian is tissue and there is no collision.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
 
 from surgsplat.model.component import Component, ComponentConfig, RenderContext, SetupContext
+from surgsplat.model.membership import tissue_members
 from surgsplat.model.physics import (PHANTOM_EXTENT_MM, NeighbourGraph, arap_strain,
-                                     collision_energy, neighbour_graph, tissue_members, tool_hull)
+                                     collision_energy, neighbour_graph, tool_proxy)
 
 
 @dataclass
@@ -44,8 +47,8 @@ class BiomechanicsConfig(ComponentConfig, kind="biomechanics"):
     collision_margin: float = field(default=2.0 / PHANTOM_EXTENT_MM, metadata={"range": "[0, 1)"})
     """Epsilon of Eq. 5 as a fraction of the scene extent, in [0, 1) (the paper's 2 mm on the
     phantom: 0.0259)."""
-    min_hull_opacity: float = field(default=0.1, metadata={"range": "[0, 1]"})
-    """Tool Gaussians at least this opaque span the tool hull; in [0, 1]."""
+    min_tool_opacity: float = field(default=0.1, metadata={"range": "[0, 1]"})
+    """Tool Gaussians at least this opaque make up the tool proxy; in [0, 1]."""
 
     def build(self) -> "Biomechanics":
         return Biomechanics(self)
@@ -65,6 +68,10 @@ class Biomechanics(Component):
         self.register_buffer("extent", torch.ones(()))
         self._graph: NeighbourGraph | None = None
         self._graph_key: tuple[int, int] = (-1, -1)  # (Gaussian count, rebuild period index)
+        self._method: tuple[Component, ...] = ()  # the method's components (plain references)
+
+    def bind(self, components: Mapping[str, Component]) -> None:
+        self._method = tuple(components.values())
 
     def setup(self, context: SetupContext) -> None:
         self.extent.fill_(max(context.scene_extent, 1e-12))
@@ -73,8 +80,7 @@ class Biomechanics(Component):
         return ("strain", "collision")
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
-        params = context.gaussians.params
-        tissue = tissue_members(params)
+        tissue = tissue_members(self._method, context.gaussians)
         if tissue is None:
             tissue = torch.ones(context.gaussians.num_gaussians, dtype=torch.bool)
         terms = {}
@@ -104,10 +110,11 @@ class Biomechanics(Component):
     def collision(self, context: RenderContext, tissue: Tensor) -> Tensor:
         """Eq. 5 at the frame's time, summed over the tissue Gaussians, in units of extent^2."""
         means = context.state.means
-        hull = None if tissue.all() else tool_hull(means, context.state.opacities, ~tissue,
-                                                   self.config.min_hull_opacity)
-        if hull is None:
+        state = context.state
+        proxy = None if tissue.all() else tool_proxy(means, state.scales, state.opacities,
+                                                     ~tissue, self.config.min_tool_opacity)
+        if proxy is None:
             return means.sum() * 0.0
         margin = self.config.collision_margin * float(self.extent)
-        sdf = hull.sdf(means[tissue], 2 * margin)
+        sdf = proxy.sdf(means[tissue], 2 * margin)
         return collision_energy(sdf, margin).sum() / self.extent.square()

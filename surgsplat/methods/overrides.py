@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from surgsplat.errors import DataError, SurgsplatError
+from surgsplat.methods import registry  # noqa: F401  (its imports register every component kind)
 from surgsplat.methods.config import KIND_KEY, MethodConfig
 from surgsplat.methods.ranges import check_field
 from surgsplat.model.component import ComponentConfig

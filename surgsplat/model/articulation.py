@@ -50,6 +50,8 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from surgsplat.data.phantom.kinematics import hinge_frame
+
 SHAFT, JAW_A, JAW_B = 0, 1, 2
 """Part labels of the canonical tool points."""
 PART_NAMES = ("shaft", "jaw_a", "jaw_b")
@@ -134,11 +136,6 @@ class Articulation:
     """[F, 2] bool: the frame saw enough of the jaw for its angle to be fitted."""
     canonical_jaw_deg: np.ndarray
     """[2] the jaws' angles in the template frame."""
-
-    @property
-    def opening_deg(self) -> np.ndarray:
-        """[F] angle between the two jaws."""
-        return np.abs(_wrap_deg(self.jaw_angles_deg[:, 1] - self.jaw_angles_deg[:, 0]))
 
 
 @dataclass(frozen=True)
@@ -304,13 +301,10 @@ def _dense_run(values: np.ndarray, width: float) -> tuple[float, float]:
 
 
 def _frame(forward: np.ndarray, origin: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """[4, 4] frame with x `forward`, z `reference` made normal to it, y = z x x."""
+    """[4, 4] shaft frame (`hinge_frame`) at `origin` with x `forward` and z `reference` made
+    normal to it."""
     z = reference - (reference @ forward) * forward
-    z = z / np.linalg.norm(z)
-    frame = np.eye(4)
-    frame[:3, 0], frame[:3, 1], frame[:3, 2], frame[:3, 3] = (forward, np.cross(z, forward), z,
-                                                              origin)
-    return frame
+    return hinge_frame(forward, z / np.linalg.norm(z), origin)
 
 
 def _hinge_frame(frame: np.ndarray, roll: float) -> np.ndarray:

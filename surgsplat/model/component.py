@@ -10,16 +10,23 @@ same way and never name one. A component declares:
 - its state for checkpoints: `nn.Module.state_dict()` (parameters and buffers);
 - how it changes the Gaussians at a frame (`transform`: deformation, opacity, colour);
 - the per-Gaussian channels it adds to a render (`render_channels`) and what it derives from the
-  rendered maps (`finish_render`: e.g. an unbiased depth, an exposure gain);
+  rendered maps (`finish_render`: e.g. an unbiased depth, an exposure gain); the channels to
+  show, each with its descriptor (`channel_descriptors`, see `model.channels`), which videos,
+  the viewer and the report list;
 - its named loss terms (`loss_names`, `losses`), computed from a `RenderContext`; their weights
   come from the method config (`MethodConfig.losses`), never from the component;
 - Gaussians of its own beyond the scene's initial points (`initial_points`, e.g. a tool's from
   the tool pixels' depth), which get the same per-Gaussian attributes as the others;
-- whether it can leave the tool out of a render (`separates_tool`): a `FrameTime` asks for a
-  tissue-only render with `tissue_only=True`, and such a component then drops the Gaussians it
-  models as tool (eval scores the hidden tissue on that render; `surgsplat render --tool-free`);
-- diagnostics of the Gaussians at a test frame for metrics.json (`frame_diagnostics`, e.g. tool
-  collisions or strain);
+- which Gaussians it models as tool (`tool_members`; every other Gaussian is tissue, see
+  `model.membership`), and whether it can leave them out of a render (`separates_tool`): a
+  `FrameTime` asks for a tissue-only render with `tissue_only=True`, and such a component then
+  drops its tool Gaussians (eval scores the hidden tissue on that render; `surgsplat render
+  --tool-free`);
+- the capabilities it offers other layers (`model.capabilities`): a signed distance field for
+  meshes (`signed_distance_field`), a relighting state (`relighting`), the tool's rigid motion
+  for its articulation (`tool_motion`);
+- its own metrics of the Gaussians at a test frame for metrics.json, with the convention of each
+  (`frame_diagnostics`, e.g. tool collisions or strain);
 - the other components of its method, when it builds on one of them (`bind`, e.g. Gaussians
   anchored on the mesh of the method's signed distance field), and where it puts the canonical
   Gaussians when it places them itself (`canonical_means`, e.g. on the faces of that mesh);
@@ -47,6 +54,8 @@ from surgsplat.errors import SurgsplatError
 
 if TYPE_CHECKING:
     from surgsplat.data.scene import Camera, Frame
+    from surgsplat.model.capabilities import Relighting, SignedDistanceField, ToolMotion
+    from surgsplat.model.channels import ChannelDescriptor
     from surgsplat.model.gaussians import GaussianModel
     from surgsplat.model.state import GaussianState
     from surgsplat.render.render import RenderOutput
@@ -100,6 +109,7 @@ class Diagnostics:
 
     summed: dict[str, float] = field(default_factory=dict)  # summed over test frames (counts)
     averaged: dict[str, float] = field(default_factory=dict)  # averaged over test frames
+    conventions: dict[str, str] = field(default_factory=dict)  # metric -> what it computes
 
 
 @dataclass
@@ -210,6 +220,29 @@ class Component(nn.Module):
 
     def finish_render(self, output: RenderOutput, camera: Camera, when: FrameTime) -> None:
         """Derive maps from the rendered channels into output (e.g. output.extras[...])."""
+
+    def channel_descriptors(self) -> tuple[ChannelDescriptor, ...]:
+        """The channels of RenderOutput.extras this component adds (rendered or derived in
+        `finish_render`) that videos, the viewer and the report show, each with its descriptor.
+        Every render made without gradients must hold them."""
+        return ()
+
+    def tool_members(self, gaussians: GaussianModel) -> Tensor | None:
+        """[N] bool, True = a Gaussian this component models as tool, or None when it models
+        no tool. Ask `model.membership` rather than one component."""
+        return None
+
+    def signed_distance_field(self) -> SignedDistanceField | None:
+        """The canonical signed distance field this component offers for meshes, or None."""
+        return None
+
+    def relighting(self) -> Relighting | None:
+        """The illumination state this component lets renders change, or None."""
+        return None
+
+    def tool_motion(self) -> ToolMotion | None:
+        """The rigid per-frame motion of the tool Gaussians this component offers, or None."""
+        return None
 
     def loss_names(self) -> tuple[str, ...]:
         """Names of the loss terms this component can compute."""

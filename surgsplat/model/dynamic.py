@@ -12,9 +12,12 @@ from torch import Tensor, nn
 
 from surgsplat.data.scene import Camera
 from surgsplat.errors import SurgsplatError
+from surgsplat.model.capabilities import Relighting, SignedDistanceField, ToolMotion
+from surgsplat.model.channels import BASE_CHANNELS, ChannelDescriptor
 from surgsplat.model.component import (Component, Diagnostics, FrameTime, ParamGroup,
                                        RenderContext)
 from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.membership import tissue_members, tool_members
 from surgsplat.model.state import GaussianState
 from surgsplat.render.render import RenderOutput, render
 
@@ -80,6 +83,39 @@ class SplatModel(nn.Module):
         """True when a component can leave the tool out (renders with `when.tissue_only`)."""
         return any(component.separates_tool for component in self.components.values())
 
+    # ---- what other layers ask of the components ----
+    def channel_descriptors(self) -> tuple[ChannelDescriptor, ...]:
+        """The channels of every render this model makes: the base channels, then those the
+        components declare, in order; SurgsplatError when two share a name."""
+        channels = list(BASE_CHANNELS)
+        for name, component in self.components.items():
+            for channel in component.channel_descriptors():
+                if channel.name in (known.name for known in channels):
+                    raise SurgsplatError(f"component {name!r} declares channel "
+                                         f"{channel.name!r}, which the render already has")
+                channels.append(channel)
+        return tuple(channels)
+
+    def tool_members(self) -> Tensor | None:
+        """[N] bool, True = a Gaussian a component models as tool; None without a tool."""
+        return tool_members(self.components.values(), self.gaussians)
+
+    def tissue_members(self) -> Tensor | None:
+        """[N] bool, True = tissue Gaussian; None when every Gaussian is tissue."""
+        return tissue_members(self.components.values(), self.gaussians)
+
+    def signed_distance_field(self) -> SignedDistanceField | None:
+        """The first component's signed distance field, or None."""
+        return _first(c.signed_distance_field() for c in self.components.values())
+
+    def relighting(self) -> Relighting | None:
+        """The first component's relighting state, or None."""
+        return _first(c.relighting() for c in self.components.values())
+
+    def tool_motion(self) -> ToolMotion | None:
+        """The first component's rigid tool motion, or None."""
+        return _first(c.tool_motion() for c in self.components.values())
+
     @torch.no_grad()
     def diagnostics(self, when: FrameTime) -> Diagnostics:
         """Every component's measurements of the Gaussians at `when`, merged."""
@@ -90,6 +126,7 @@ class SplatModel(nn.Module):
             if found is not None:
                 merged.summed.update(found.summed)
                 merged.averaged.update(found.averaged)
+                merged.conventions.update(found.conventions)
         return merged
 
     # ---- what training needs ----
@@ -142,6 +179,11 @@ class SplatModel(nn.Module):
         """Optimiser groups of every component's own parameters."""
         return [group for component in self.components.values()
                 for group in component.param_groups()]
+
+
+def _first(offers):
+    """The first of `offers` that is not None, or None."""
+    return next((offer for offer in offers if offer is not None), None)
 
 
 def _product(factors) -> Tensor | None:

@@ -40,8 +40,11 @@
   `start` (a fraction of the run) in the method config; before it the decoder
   never runs (Stage 1: "illumination is not explicitly predicted; only e_t modulates
   appearance").
-- Relighting: `relit("uniform")` renders every time under the mean of the training frames'
-  embeddings and maps (one constant illumination state); `relit(frame)` under frame `frame`'s.
+- Relighting (the component's `relighting` capability, `model.capabilities`): `relit("uniform")`
+  renders every time under the mean of the training frames' embeddings and maps (one constant
+  illumination state); `relit(frame)` under frame `frame`'s.
+- Shown channels (`channel_descriptors`): the reflectance (colour) and the illumination (grey
+  over [0, 1]), under the standard names of a decomposition (`model.channels`).
 """
 
 from __future__ import annotations
@@ -60,6 +63,9 @@ from surgsplat.errors import SurgsplatError
 from surgsplat.fields.illumination import LEVELS, IlluminationUNet, brightness
 from surgsplat.losses.retinex import (bright_channel_loss, illumination_transfer_loss,
                                       retinex_loss)
+from surgsplat.model.capabilities import UNIFORM
+from surgsplat.model.channels import (ILLUMINATION, REFLECTANCE, ChannelDescriptor, ChannelKind,
+                                      Colormap)
 from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
                                        RenderContext, SceneInfo, SetupContext)
 from surgsplat.model.state import GaussianState
@@ -67,8 +73,6 @@ from surgsplat.render.sh import SH_C0, sh_colour
 
 MAP_MULTIPLE = 2 ** (LEVELS - 1)
 """The illumination maps' sides are multiples of this (the UNet pools twice)."""
-UNIFORM = "uniform"
-"""`relit` source: the mean illumination state of the training frames."""
 GAIN_FLOOR = 0.05
 """Smallest canonical colour (sum of the 3 channels) the gain channel divides by."""
 
@@ -282,6 +286,9 @@ class LumiState(Component):
         return interpolate_in_time(table[index], index.to(torch.float64) / self.config.num_frames,
                                    time)
 
+    def relighting(self) -> "LumiState":
+        return self
+
     @contextmanager
     def relit(self, source: str | int) -> Iterator[None]:
         """Render under illumination `source` while the block runs: "uniform" or a frame index."""
@@ -324,12 +331,16 @@ class LumiState(Component):
                                 camera.world_to_camera)  # [N, 3]
         lit = sh_colour(state.sh_degree, state.sh, state.means, camera.world_to_camera)
         gain = lit.sum(dim=1) / reflectance.sum(dim=1).clamp_min(GAIN_FLOOR)  # [N]
-        return {"reflectance": reflectance, "gain": gain[:, None]}
+        return {REFLECTANCE: reflectance, "gain": gain[:, None]}
+
+    def channel_descriptors(self) -> tuple[ChannelDescriptor, ...]:
+        return (ChannelDescriptor(REFLECTANCE, ChannelKind.COLOUR),
+                ChannelDescriptor(ILLUMINATION, ChannelKind.SCALAR, Colormap.GRAY, (0.0, 1.0)))
 
     def finish_render(self, output, camera, when: FrameTime) -> None:
         if not self.is_live(when):
             low = self.cached_state(self.illumination_maps, when)
-            output.extras["illumination"] = self.upsample(low, camera.height, camera.width)[..., None]
+            output.extras[ILLUMINATION] = self.upsample(low, camera.height, camera.width)[..., None]
 
     @staticmethod
     def upsample(low: Tensor, height: int, width: int) -> Tensor:
@@ -355,7 +366,7 @@ class LumiState(Component):
         illumination = self.upsample(low, frame.image.shape[0], frame.image.shape[1])
         terms = {}
         if "retinex" in active:
-            terms["retinex"] = retinex_loss(context.output.extras["reflectance"], illumination,
+            terms["retinex"] = retinex_loss(context.output.extras[REFLECTANCE], illumination,
                                             frame.image, frame.tissue)
         if "bright_channel" in active:
             terms["bright_channel"] = bright_channel_loss(illumination, frame.image, frame.tissue,

@@ -1,7 +1,8 @@
 """Gaussians anchored on the faces of the mesh of the method's signed distance field (DRAWER,
 `drawer-supplement.txt` Section B.2).
 
-The mesh is the zero level set of the method's SDF component (`fields.level_set.marching_cubes`),
+The mesh is the zero level set of the method's signed distance field (the first component's
+`signed_distance_field`, `model.capabilities`; `fields.level_set.marching_cubes`),
 extracted at the first training step and again after every `reanchor_every` steps. Each Gaussian
 is mapped to a face k (per-Gaussian attribute `anchor_face`, carried by densification like any
 attribute: a clone or split child keeps its parent's face): the nearest face (among the
@@ -33,7 +34,7 @@ a frame by the displacement of the nearby Gaussians from their anchored canonica
 and its losses at the raw means (see `fields.sdf`): its projection loss pulls them back onto the
 zero level, which keeps the clip small.
 
-Gaussians that a tool field marks as tool (`model.physics.tissue_members`) are left as they are.
+Gaussians that a component of the method marks as tool (`model.membership`) are left as they are.
 """
 
 from __future__ import annotations
@@ -50,9 +51,10 @@ from torch import Tensor
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.level_set import marching_cubes
+from surgsplat.model.capabilities import SignedDistanceField
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, SetupContext
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.model.physics import tissue_members
+from surgsplat.model.membership import tissue_members
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
@@ -185,14 +187,18 @@ class MeshAnchor(Component):
         self.register_buffer("vertices", torch.zeros(0, 3))
         self.register_buffer("faces", torch.zeros(0, 3, dtype=torch.long))
         self.register_buffer("cell", torch.zeros(()))
-        self._surface: list[Component] = []  # the method's SDF component (a plain reference)
+        # the method's signed distance field and components, as plain references in tuples (a
+        # module held directly would become a submodule, its state saved twice)
+        self._surface: tuple[SignedDistanceField, ...] = ()
+        self._method: tuple[Component, ...] = ()
 
     def bind(self, components: Mapping[str, Component]) -> None:
-        fields = [c for c in components.values() if callable(getattr(c, "signed_distance", None))]
-        if not fields:
+        fields = [c.signed_distance_field() for c in components.values()]
+        self._surface = tuple(field for field in fields if field is not None)[:1]
+        if not self._surface:
             raise SurgsplatError("mesh_anchor needs a component with a signed distance field "
                                  "(e.g. 'sdf') in the same method")
-        self._surface = fields[:1]
+        self._method = tuple(components.values())
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
         # the mesh's size is that of the saved run's last extraction
@@ -265,7 +271,7 @@ class MeshAnchor(Component):
         means = gaussians.params["means"]
         corners = self.face_corners(gaussians)
         clipped = self._clipped_means(means, corners, self.face_radius(corners))
-        tissue = tissue_members(gaussians.params)
+        tissue = tissue_members(self._method, gaussians)
         if tissue is not None:
             clipped = torch.where(tissue[:, None], clipped, means)
         return straight_through(clipped, means)
@@ -296,7 +302,7 @@ class MeshAnchor(Component):
         scales = torch.minimum(state.scales, limits)
         quats = clip_tilt(state.quats, face_frames(corners)[..., 2],
                           math.radians(config.max_tilt_deg))
-        tissue = tissue_members(gaussians.params)
+        tissue = tissue_members(self._method, gaussians)
         if tissue is not None:
             means = torch.where(tissue[:, None], means, state.means)
             scales = torch.where(tissue[:, None], scales, state.scales)

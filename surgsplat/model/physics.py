@@ -1,12 +1,17 @@
 """Physical quantities of Gaussian sets (PhysioSplat Section 2.3), as plain tensor functions.
 
-- The tool proxy: the convex hull of the tool Gaussians' means as facet planes, and its signed
-  distance Psi(x) = max_f (n_f . x + b_f): exact (negative) inside the hull, a lower bound of the
-  distance (positive) outside; differentiable in x.
+- The tool proxy Psi (Eq. 5): the union of balls around the tool Gaussians' centres, each of
+  its Gaussian's smallest scale (the thickness of the tool's skin of Gaussians; a largest scale
+  reaches 13 mm on the full phantom), Psi(x) = min_k (|x - c_k| - r_k), differentiable in x. The
+  paper takes the tool's convex hull, but a grasper touching tissue spans a hull over the tissue
+  it holds: on the full phantom the true tissue lay within the 2 mm margin of the trained tool's
+  hull over 27,000 pixels a frame (the tool covers 23,000). With the balls, physiosplat ends
+  with 29 tissue Gaussians inside the tool instead of 952, and 0.4 dB more psnr_tissue (full
+  phantom, 3000 iterations, one seed; the hole in its tool-free render stayed: not this).
 - ARAP strain (Eq. 4) over a canonical k-nearest-neighbour graph (scipy's cKDTree), with the
   stiffness weights w_ij = exp(-|d_ij(0)|^2 / zeta^2), zeta the mean neighbour distance.
-- Tissue / tool membership from the per-Gaussian semantic logit s: p = sigmoid(s) is the tissue
-  probability, and a Gaussian is tissue when p >= tau = 0.5 (the paper's threshold), i.e. s >= 0.
+
+Which Gaussians are tool and which tissue is the components' to say (`model.membership`).
 
 All lengths are in scene units.
 """
@@ -23,54 +28,38 @@ PHANTOM_EXTENT_MM = 77.35
 phantom, mm: the length by which the paper's millimetre values (its 2 mm margin) become
 fractions of the scene extent (2 mm = 0.0259 of it)."""
 
-SEMANTIC_KEY = "semantic_logit"
-"""Per-Gaussian attribute holding the semantic logit s ([N]; sigmoid(s) = tissue probability)."""
-
-
-def tissue_members(params) -> Tensor | None:
-    """[N] bool, True = tissue Gaussian (sigmoid(s) >= 0.5), from a params dict holding
-    SEMANTIC_KEY; None when there is no semantic logit (every Gaussian is tissue)."""
-    logits = params.get(SEMANTIC_KEY)
-    return None if logits is None else logits.detach() >= 0.0
-
 
 @dataclass
-class ToolHull:
-    """The convex hull of a point set: its facet planes and its axis-aligned bounds."""
+class ToolProxy:
+    """The tool as a union of balls (see the module docstring)."""
 
-    planes: Tensor  # [F, 4] unit outward normal and offset: n . x + b <= 0 inside
-    lo: Tensor  # [3] lower corner of the points' bounding box
-    hi: Tensor  # [3] upper corner
+    centres: Tensor  # [K, 3] tool Gaussians' centres at one time
+    radii: Tensor  # [K] their smallest scales
+
+    candidates: int = 8
+    """Nearest centres among which Psi's minimum is looked for."""
 
     def sdf(self, x: Tensor, clear: float) -> Tensor:
-        """[N, 3] -> [N] signed distance proxy max_f (n_f . x + b_f); points farther than
-        `clear` outside the bounding box are not evaluated and get `clear` (at least that far
-        from the hull), which bounds the cost to the points near the tool."""
-        near = ((x.detach() >= self.lo - clear) & (x.detach() <= self.hi + clear)).all(dim=1)
+        """[N, 3] -> [N] Psi(x) = min_k (|x - c_k| - r_k) over the `candidates` nearest centres;
+        points farther than `clear` from every ball get `clear` (at least that far from the
+        tool), which bounds the cost to the points near the tool."""
+        from scipy.spatial import cKDTree
+
         values = torch.full((x.shape[0],), float(clear), dtype=x.dtype)
-        if near.any():
-            values = values.index_put((near,), hull_sdf(x[near], self.planes))
-        return values
-
-
-def hull_planes(points: Tensor) -> Tensor | None:
-    """[K, 3] points -> [F, 4] facet planes (unit outward normal, offset) of their convex hull,
-    with n . x + b <= 0 inside; None when the points span no volume (fewer than 4, or flat)."""
-    from scipy.spatial import ConvexHull, QhullError
-
-    array = points.detach().double().cpu().numpy()
-    if array.shape[0] < 4:
-        return None
-    try:
-        hull = ConvexHull(array)
-    except QhullError:
-        return None
-    return torch.from_numpy(hull.equations).to(points.dtype)
-
-
-def hull_sdf(x: Tensor, planes: Tensor) -> Tensor:
-    """[N, 3] points, [F, 4] hull planes -> [N] signed distance proxy max_f (n_f . x + b_f)."""
-    return (x @ planes[:, :3].T + planes[:, 3]).max(dim=1).values
+        reach = float(clear) + float(self.radii.max())
+        lo, hi = self.centres.min(dim=0).values - reach, self.centres.max(dim=0).values + reach
+        near = ((x.detach() >= lo) & (x.detach() <= hi)).all(dim=1).nonzero()[:, 0]
+        if near.numel() == 0:
+            return values
+        k = min(self.candidates, self.centres.shape[0])
+        _, index = cKDTree(self.centres.double().numpy()).query(
+            x.detach()[near].double().numpy(), k=k, distance_upper_bound=reach)
+        index = torch.from_numpy(index.reshape(near.shape[0], k))
+        found = index < self.centres.shape[0]  # cKDTree marks "none within reach" by K
+        index = index.clamp(max=self.centres.shape[0] - 1)
+        distance = (x[near][:, None] - self.centres[index]).norm(dim=-1) - self.radii[index]
+        distance = torch.where(found, distance, torch.full_like(distance, float(clear)))
+        return values.index_put((near,), distance.min(dim=1).values.clamp(max=float(clear)))
 
 
 @dataclass
@@ -123,15 +112,11 @@ def collision_energy(sdf: Tensor, margin: float) -> Tensor:
     return torch.relu(margin - sdf).square()
 
 
-def tool_hull(means: Tensor, opacities: Tensor, tool: Tensor, min_opacity: float,
-              max_points: int = 512) -> ToolHull | None:
-    """The convex hull of the tool Gaussians (bool [N]) at least `min_opacity` opaque, from
-    their means [N, 3] at one time (no gradient), spanned by at most `max_points` of them (an
-    evenly strided subset, which keeps the facet count small); None without a hull."""
-    chosen = means.detach()[tool & (opacities.detach() >= min_opacity)]
-    if chosen.shape[0] > max_points:
-        chosen = chosen[torch.linspace(0, chosen.shape[0] - 1, max_points).long()]
-    planes = hull_planes(chosen)
-    if planes is None:
+def tool_proxy(means: Tensor, scales: Tensor, opacities: Tensor, tool: Tensor,
+               min_opacity: float) -> ToolProxy | None:
+    """The tool proxy of the tool Gaussians (bool [N]) at least `min_opacity` opaque, from their
+    means [N, 3] and scales [N, 3] at one time (no gradient); None without such Gaussians."""
+    chosen = tool & (opacities.detach() >= min_opacity)
+    if not chosen.any():
         return None
-    return ToolHull(planes, chosen.min(dim=0).values, chosen.max(dim=0).values)
+    return ToolProxy(means.detach()[chosen], scales.detach()[chosen].min(dim=1).values)

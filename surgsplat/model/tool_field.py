@@ -1,14 +1,17 @@
 """PhysioSplat's tool / tissue decomposition as a component (`physiosplat.txt` Section 2.2).
 
-- Per-Gaussian semantic logit s (attribute `semantic_logit`, see `model.physics`): tissue when
-  sigmoid(s) >= 0.5. The rendered channel `tool_probability` blends 1 - sigmoid(s); the loss term
-  "mask" is its binary cross-entropy against the frame's tool mask over the field of view.
+- Per-Gaussian semantic logit s (attribute `semantic_logit`, read by this module alone): tissue
+  when p = sigmoid(s) >= tau = 0.5 (the paper's threshold), i.e. s >= 0; the others are the tool
+  Gaussians it declares (`tool_members`, which every other module asks through
+  `model.membership`). The rendered channel `tool_probability` blends 1 - sigmoid(s); the loss
+  term "mask" is its binary cross-entropy against the frame's tool mask over the field of view.
 - Tool Gaussians move rigidly (Eq. 1): mu(t) = R(t) mu + T(t), with their rotation turned by R(t)
   and their canonical scales; tissue Gaussians keep what the components before this one (the
   deformation field) made of them. R(t), T(t) map the canonical tool, which is the tool of the
   reference frame (the training frame with the most tool pixels), to frame t; composing the
   paper's per-frame increments gives the same map. Each frame has its own learnable pose (rotation
-  vector, translation); held-out frames interpolate their training neighbours.
+  vector, translation); held-out frames interpolate their training neighbours. The poses are the
+  component's `tool_motion`, from which the tool's articulation is estimated.
 - Initial tool Gaussians are the reference frame's tool pixels back-projected with the observed
   depth (which sees the tool); without depth (monocular), at a fixed fraction of the initial
   points' median depth. Initial poses register, frame by frame in time order from the
@@ -25,7 +28,7 @@
   gradient weighted by omega = exp(-|c - c_adj|_1 / (3 sigma)), its diffuse colour c against
   c_adj, the most recent training observation of that pixel as tissue (a static-view stand-in for
   the nearest unoccluded frame).
-- Diagnostics at test frames: `collisions` (tissue Gaussians inside the tool hull, summed over
+- Diagnostics at test frames: `collisions` (tissue Gaussians inside the tool proxy, summed over
   test frames) and `arap_strain_mean` (Eq. 4 per tissue Gaussian over a fresh canonical 16-NN
   graph, averaged; scene units squared).
 """
@@ -41,17 +44,19 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from surgsplat.image.pinhole import backproject
+from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
                                        InitialPoints, ParamGroup, RenderContext, SceneInfo,
                                        SetupContext)
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.model.physics import (PHANTOM_EXTENT_MM, SEMANTIC_KEY, arap_strain,
-                                     neighbour_graph, tool_hull)
+from surgsplat.model.physics import PHANTOM_EXTENT_MM, arap_strain, neighbour_graph, tool_proxy
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
 from surgsplat.render.sh import SH_C0
 
+SEMANTIC_KEY = "semantic_logit"
+"""Per-Gaussian attribute holding the semantic logit s ([N]; sigmoid(s) = tissue probability)."""
 TOOL_CHANNEL = "tool_probability"
 """Rendered channel [H, W, 1]: blended tool probability 1 - sigmoid(s)."""
 
@@ -83,8 +88,8 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     """Adam learning rate of the per-frame translations, in units of the scene extent."""
     icp_iterations: int = field(default=30, metadata={"range": "[0, inf)"})
     """Point-to-point ICP iterations per frame when the initial poses are registered."""
-    min_hull_opacity: float = field(default=0.1, metadata={"range": "[0, 1]"})
-    """Tool Gaussians at least this opaque span the tool proxy (convex hull)."""
+    min_tool_opacity: float = field(default=0.1, metadata={"range": "[0, 1]"})
+    """Tool Gaussians at least this opaque make up the tool proxy (`model.physics.ToolProxy`)."""
     densify_margin: float = field(default=2.0 / PHANTOM_EXTENT_MM, metadata={"range": "[0, 1)"})
     """No densification where the tool proxy's signed distance is below this fraction of the
     scene extent, in [0, 1) (the paper's epsilon, 2 mm on the phantom: 0.0259)."""
@@ -213,6 +218,17 @@ class ToolField(Component):
         return [ParamGroup("tool_rotation", [self.rotations], self.config.rotation_lr),
                 ParamGroup("tool_translation", [self.translations], self.config.translation_lr)]
 
+    # ---- membership and capabilities ----
+    def tool_members(self, gaussians: GaussianModel) -> Tensor:
+        """[N] bool: p = sigmoid(s) < tau = 0.5, i.e. not s >= 0."""
+        return ~(gaussians.params[SEMANTIC_KEY].detach() >= 0.0)
+
+    def tool_motion(self) -> "ToolField":
+        return self
+
+    def channel_descriptors(self) -> tuple[ChannelDescriptor, ...]:
+        return (ChannelDescriptor(TOOL_CHANNEL, ChannelKind.PROBABILITY, Colormap.INFERNO),)
+
     # ---- motion ----
     def pose(self, index: int) -> tuple[Tensor, Tensor]:
         """Rotation vector [3] and translation [3] (scene units) of frame `index`: its own when
@@ -241,7 +257,7 @@ class ToolField(Component):
         `GradientGate`, which `losses` closes for the tissue hidden behind rendered tool."""
         self._gate = GradientGate()
         state = state.replace(sh=self._gate(state.sh), opacities=self._gate(state.opacities))
-        tool = ~(gaussians.params[SEMANTIC_KEY] >= 0.0)  # [N] p < tau
+        tool = self.tool_members(gaussians)  # [N]
         if not tool.any():
             return state
         rotvec, translation = self.pose(when.index)
@@ -281,7 +297,7 @@ class ToolField(Component):
         Its position still moves: the biomechanical energies carry the visible motion to it."""
         frame = context.frame
         with torch.no_grad():
-            tool = ~(context.gaussians.params[SEMANTIC_KEY] >= 0.0)
+            tool = self.tool_members(context.gaussians)
             self._gate.keep = ~self._occluded(context, tool)[0]
         probability = context.output.extras[TOOL_CHANNEL][..., 0].clamp(1e-4, 1.0 - 1e-4)
         inside = frame.fov
@@ -292,12 +308,13 @@ class ToolField(Component):
     @torch.no_grad()
     def densify_weights(self, context: RenderContext) -> Tensor | None:
         state, frame = context.state, context.frame
-        tool = ~(context.gaussians.params[SEMANTIC_KEY] >= 0.0)
+        tool = self.tool_members(context.gaussians)
         weights = torch.ones(tool.shape[0])
-        hull = tool_hull(state.means, state.opacities, tool, self.config.min_hull_opacity)
-        if hull is not None:
+        proxy = tool_proxy(state.means, state.scales, state.opacities, tool,
+                           self.config.min_tool_opacity)
+        if proxy is not None:
             margin = self.config.densify_margin * float(self.unit)
-            weights[hull.sdf(state.means, 2 * margin) < margin] = 0.0
+            weights[proxy.sdf(state.means, 2 * margin) < margin] = 0.0
         self._remember_tissue(frame)
         occluded, pixels = self._occluded(context, tool)
         if occluded.any():
@@ -337,18 +354,29 @@ class ToolField(Component):
     @torch.no_grad()
     def frame_diagnostics(self, state: GaussianState, gaussians: GaussianModel,
                           when: FrameTime) -> Diagnostics:
-        tool = ~(gaussians.params[SEMANTIC_KEY] >= 0.0)
+        tool = self.tool_members(gaussians)
         tissue = ~tool
-        hull = tool_hull(state.means, state.opacities, tool, self.config.min_hull_opacity)
+        proxy = tool_proxy(state.means, state.scales, state.opacities, tool,
+                           self.config.min_tool_opacity)
         collisions = 0
-        if hull is not None and tissue.any():
-            collisions = int((hull.sdf(state.means[tissue], 1.0) < 0).sum())
+        if proxy is not None and tissue.any():
+            collisions = int((proxy.sdf(state.means[tissue], 1.0) < 0).sum())
         graph = neighbour_graph(gaussians.params["means"], tissue, self.config.strain_neighbours)
         strain = 0.0
         if tissue.any():
             strain = float(arap_strain(state.means, gaussians.params["means"], graph).mean())
         return Diagnostics(summed={"collisions": collisions},
-                           averaged={"arap_strain_mean": strain})
+                           averaged={"arap_strain_mean": strain},
+                           conventions=self.diagnostics_conventions())
+
+    def diagnostics_conventions(self) -> dict[str, str]:
+        """What `frame_diagnostics` measures, for metrics.json's conventions."""
+        return {"collisions": "tissue Gaussians inside the tool proxy (balls of the tool "
+                              "Gaussians' smallest scale), summed over test frames (methods "
+                              "with a tool field)",
+                "arap_strain_mean": "Eq. 4 ARAP strain per tissue Gaussian over its canonical "
+                                    f"{self.config.strain_neighbours} nearest neighbours, scene "
+                                    "units squared, mean over test frames"}
 
 
 class GradientGate:

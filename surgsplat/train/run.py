@@ -11,6 +11,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
+from torch import Tensor
+
+from surgsplat.atomic import remove_stale_temporaries
 from surgsplat.data.scene import Scene, load_scene
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig
@@ -29,7 +33,9 @@ def run_lock(run_dir: Path, create: bool = False) -> Iterator[None]:
     """Own the run folder `run_dir` while the block runs: an exclusive flock on RUN/.lock,
     released when the process ends however it ends. Another process that holds it stops this
     one with a SurgsplatError naming the folder and that process's PID. The folder is created
-    when `create`, else it must exist. Temporary files that a killed writer left are removed."""
+    when `create`, else it must exist. Temporary files that a killed writer left in the folder
+    or below it are removed; those of a writer still running (`surgsplat report` into the run,
+    say) are left alone (`remove_stale_temporaries`)."""
     run_dir = Path(run_dir)
     if create:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -53,8 +59,8 @@ def run_lock(run_dir: Path, create: bool = False) -> Iterator[None]:
                                  "folder") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        for orphan in run_dir.glob("**/.*.tmp*"):  # left by a writer killed mid-write
-            orphan.unlink(missing_ok=True)
+        for folder in (run_dir, *(path for path in run_dir.rglob("*") if path.is_dir())):
+            remove_stale_temporaries(folder)
         yield
     finally:
         os.close(fd)
@@ -129,6 +135,11 @@ class TrainedRun:
     iteration: int
     train_seconds: float
     peak_rss_mb: float  # of the training process
+
+    @property
+    def background(self) -> Tensor:
+        """[3] RGB in [0, 1] behind the Gaussians, as the run was trained with."""
+        return torch.tensor(self.config.train.background, dtype=torch.float32)
 
 
 def load_trained_run(run_dir: Path, data_dir: Path | None = None) -> TrainedRun:

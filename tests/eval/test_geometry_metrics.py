@@ -10,10 +10,11 @@ import torch
 from surgsplat.image.pinhole import backproject
 from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.scene import load_scene
+from surgsplat.eval.geometry_families import gaussian_geometry
 from surgsplat.eval.geometry_metrics import (chamfer_mm, depth_rmse, geometry_metrics,
                                              point_to_surface, point_triangle_distance,
                                              sample_surface, weighted_mean_median)
-from surgsplat.eval.run_metrics import gaussian_geometry, mesh_path
+from surgsplat.eval.metric_family import gt_mesh_path
 
 
 def grid_mesh(nx=21, ny=16, size=(20.0, 15.0), jitter=0.0, height=None, seed=0):
@@ -260,7 +261,7 @@ def test_opacity_weighted_gaussian_p2s_discounts_faded_floaters(small_phantom):
 0; 2e-3 mm for the mean, as a floater may lie nearer than 5 mm where the surface curves)."""
     scene = load_scene(small_phantom)
     frame = scene.test_frames[0]
-    vertices, faces = read_ply_mesh(mesh_path(scene.root, frame.index))
+    vertices, faces = read_ply_mesh(gt_mesh_path(scene.root, frame.index))
     surface = torch.from_numpy(vertices).float()
     toward_camera = torch.nn.functional.normalize(
         frame.camera.camera_to_world[:3, 3] - surface, dim=1)

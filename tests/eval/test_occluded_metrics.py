@@ -8,7 +8,7 @@ import torch
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.phantom.generate import TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
 from surgsplat.data.scene import Frame, load_scene, read_image
-from surgsplat.eval.run_metrics import occluded_row
+from surgsplat.eval.render_families import occluded_row
 
 
 def _frame_with_tool(scene):

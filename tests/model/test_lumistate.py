@@ -4,7 +4,7 @@ stages, checkpoints, relighting, the decomposition metrics and the render channe
 import pytest
 import torch
 
-from surgsplat.cli.render_videos import write_run_videos
+from surgsplat.pipeline.render import write_run_videos
 from surgsplat.data.scene import load_scene, read_image
 from surgsplat.eval.decomposition import DecompositionScores
 from surgsplat.fields.illumination import IlluminationUNet, bright_channel, brightness
@@ -139,8 +139,10 @@ def test_decomposition_scores_are_scale_free_and_catch_leaking_light(small_phant
 
 
 def test_render_options_are_checked_at_the_boundary(tmp_path, cli, one_error_line):
-    line = one_error_line(cli("render", str(tmp_path), "--channels", "rgb,albedo"))
-    assert "--channels" in line and "reflectance" in line
+    """An empty --channels is refused before the run is read; which channels a run renders is
+    its method's to say (tests/train/test_toy_component.py checks an unknown one)."""
+    line = one_error_line(cli("render", str(tmp_path), "--channels", ","))
+    assert "--channels" in line and "rgb,depth,normal,side_by_side" in line
 
 
 def test_colour_modulation_sends_no_gradient_to_the_means():

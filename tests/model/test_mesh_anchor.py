@@ -111,6 +111,9 @@ class Ball(Component):
     def signed_distance(self, points: Tensor) -> Tensor:
         return points.norm(dim=1) - self.radius
 
+    def signed_distance_field(self) -> "Ball":
+        return self
+
 
 def anchored_model(count: int, ball: Ball, config: MeshAnchorConfig) -> tuple[MeshAnchor,
                                                                                GaussianModel]:

@@ -19,11 +19,10 @@ from surgsplat.losses.biomechanics import BiomechanicsConfig
 from surgsplat.model.component import FrameTime, RenderContext, SceneInfo, SetupContext
 from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
-from surgsplat.model.physics import (SEMANTIC_KEY, arap_strain, collision_energy, hull_planes,
-                                     hull_sdf, neighbour_graph, tool_hull)
+from surgsplat.model.physics import arap_strain, collision_energy, neighbour_graph, tool_proxy
 from surgsplat.image.pinhole import depth_normals, pixel_rays
 from surgsplat.model.specular import smooth_depth, specular_lobe, view_cosine
-from surgsplat.model.tool_field import ToolFieldConfig, _icp
+from surgsplat.model.tool_field import SEMANTIC_KEY, ToolFieldConfig, _icp
 from surgsplat.render.render import render
 from surgsplat.render.rotation import quaternion_to_matrix
 
@@ -118,15 +117,31 @@ def test_tool_free_render_equals_rendering_the_tissue_subset_alone():
     assert (full.rgb - tool_free.rgb).abs().max() > 0.05  # the tool was in view
 
 
-def test_hull_signed_distance_of_a_cube():
-    corners = torch.tensor([[x, y, z] for x in (0.0, 2.0) for y in (0.0, 2.0) for z in (0.0, 2.0)])
-    planes = hull_planes(corners)
-    probes = torch.tensor([[1.0, 1.0, 1.0], [1.0, 1.0, 1.8], [3.0, 1.0, 1.0]])
-    torch.testing.assert_close(hull_sdf(probes, planes), torch.tensor([-1.0, -0.2, 1.0]))
-    assert hull_planes(corners[:3]) is None  # no volume
-    hull = tool_hull(corners, torch.ones(8), torch.ones(8, dtype=torch.bool), 0.5)
-    far = torch.tensor([[50.0, 0.0, 0.0]])
-    assert hull.sdf(far, 4.0).item() == 4.0  # culled: at least the clearance away
+def brute_force_proxy_sdf(x: Tensor, centres: Tensor, radii: Tensor) -> Tensor:
+    """min_k (|x - c_k| - r_k) over every ball."""
+    return ((x[:, None] - centres[None]).norm(dim=-1) - radii).min(dim=1).values
+
+
+def test_tool_proxy_is_the_union_of_balls_and_leaves_the_gap_between_jaws_free():
+    """Two jaws (balls of their smallest scale, 0.1, at x = -3 and 3): a point between them is
+    2.9 from the tool (their convex hull would put it inside); inside a ball Psi < 0; far points
+    get the clearance; equal to the brute-force minimum over all balls within 1e-6."""
+    generator = torch.Generator().manual_seed(4)
+    centres = torch.tensor([[-3.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
+    scales = torch.tensor([[0.5, 0.2, 0.1], [0.1, 0.5, 0.2]])
+    proxy = tool_proxy(centres, scales, torch.ones(2), torch.ones(2, dtype=torch.bool), 0.5)
+    probes = torch.tensor([[0.0, 0.0, 0.0], [3.04, 0.0, 0.0], [50.0, 0.0, 0.0]])
+    torch.testing.assert_close(proxy.sdf(probes, 4.0), torch.tensor([2.9, -0.06, 4.0]))
+    many = torch.randn(200, 3, generator=generator) * 2.0
+    balls = torch.randn(300, 3, generator=generator) * 2.0
+    radii = torch.rand(300, generator=generator) * 0.3 + 0.05
+    proxy = tool_proxy(balls, radii[:, None].expand(-1, 3), torch.ones(300),
+                       torch.ones(300, dtype=torch.bool), 0.5)
+    expected = brute_force_proxy_sdf(many, balls, radii).clamp(max=10.0)
+    torch.testing.assert_close(proxy.sdf(many, 10.0), expected, atol=1e-6, rtol=0)
+    faint = tool_proxy(balls, radii[:, None].expand(-1, 3), torch.zeros(300),
+                       torch.ones(300, dtype=torch.bool), 0.5)
+    assert faint is None  # no tool Gaussian opaque enough
 
 
 def test_collision_energy_is_zero_clear_of_the_tool_and_positive_inside():
@@ -171,6 +186,7 @@ def test_volume_energy_is_zero_for_the_identity_and_measures_a_known_compression
     identity = HexPlaneConfig(volume_samples=8).build()  # starts as the identity field
     assert identity.volume_loss(gaussians, 0.3).item() == pytest.approx(0.0, abs=1e-10)
     squeeze = _LinearField(torch.diag(torch.tensor([-0.2, 0.0, 0.0])))  # det = 0.8
+    squeeze.bind({"deformation": squeeze, "tool": _tool_field()})  # the tool is not tissue
     tissue = int((gaussians.params[SEMANTIC_KEY] >= 0).sum())
     # Eq. 6 is a sum over the tissue Gaussians (16 sampled of them, each (0.8 - 1)^2 = 0.04),
     # not their mean: the paper's weight is a weight of that sum (rel. tolerance: float32).
@@ -198,13 +214,13 @@ def test_energies_gradients_match_finite_differences():
     graph = neighbour_graph(points, torch.ones(20, dtype=torch.bool), 4)
     deformed = (points * 1.1 + 0.05 * torch.randn(20, 3, dtype=torch.float64)).requires_grad_()
     assert torch.autograd.gradcheck(lambda x: arap_strain(x, points, graph).sum(), (deformed,))
-    cube = torch.tensor([[x, y, z] for x in (0.0, 2.0) for y in (0.0, 2.0) for z in (0.0, 2.0)],
-                        dtype=torch.float64)
-    planes = hull_planes(cube)
-    probes = torch.tensor([[1.0, 1.1, 1.7], [2.3, 0.9, 1.2], [0.4, 1.0, 0.8]],
+    balls = torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]], dtype=torch.float64)
+    proxy = tool_proxy(balls, torch.full((3, 3), 0.3, dtype=torch.float64), torch.ones(3),
+                       torch.ones(3, dtype=torch.bool), 0.5)
+    probes = torch.tensor([[0.4, 0.3, 0.2], [2.3, 0.2, 0.1], [0.1, 1.5, 0.3]],
                           dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(
-        lambda x: collision_energy(hull_sdf(x, planes), 0.5).sum(), (probes,))
+        lambda x: collision_energy(proxy.sdf(x, 3.0), 0.5).sum(), (probes,))
 
 
 def test_specular_lobe_peaks_facing_the_camera_and_has_checked_gradients():
@@ -250,6 +266,7 @@ def _energies(scale: float) -> tuple[dict[str, float], dict[str, float]]:
     gaussians, stretched = _contact_scene(scale)
     extent = 40.0 * scale
     component = BiomechanicsConfig(anchors=10_000, collision_margin=0.05).build()
+    component.bind({"biomechanics": component, "tool": _tool_field()})
     component.setup(SetupContext(scene=SceneInfo(1, 64, 48, (0,)),
                                  points=gaussians.params["means"].detach(),
                                  scene_extent=extent, frames=[]))
@@ -261,8 +278,9 @@ def _energies(scale: float) -> tuple[dict[str, float], dict[str, float]]:
     tissue = gaussians.params[SEMANTIC_KEY] >= 0
     graph = neighbour_graph(gaussians.params["means"], tissue, 16)
     strain = arap_strain(stretched, gaussians.params["means"], graph).sum()
-    planes = hull_planes(stretched[~tissue])
-    collision = collision_energy(hull_sdf(stretched[tissue], planes), 0.05 * extent).sum()
+    radii = state.scales[~tissue].min(dim=1).values
+    proxy_sdf = brute_force_proxy_sdf(stretched[tissue], stretched[~tissue], radii)
+    collision = collision_energy(proxy_sdf, 0.05 * extent).sum()
     return ({name: float(value) for name, value in terms.items()},
             {"strain": float(strain) / extent ** 2, "collision": float(collision) / extent ** 2})
 
@@ -281,14 +299,13 @@ def test_biomechanical_energies_are_sums_over_tissue_in_units_of_the_extent():
     assert in_metres["collision"] == pytest.approx(terms["collision"], rel=1e-3)
 
 
-def test_mask_loss_never_flips_tissue_hidden_behind_the_tool():
-    """A large opaque tool Gaussian in front of a tissue Gaussian, under a tool mask covering
-    the image: the hidden tissue's blend weight is ~1e-3, but per-Gaussian Adam would move its
-    logit by ~lr per step regardless. 300 steps at lr 0.05 (15 logit units, past the init 4)
-    must leave it tissue (logit unchanged to 1e-6) while the tool's logit moves towards tool."""
+def _tool_before_tissue(opacity: float):
+    """A tissue Gaussian (row 0, 20 mm deep) behind a large tool Gaussian (row 1, 14 mm), both
+    of `opacity`, under a tool mask covering a black image: (gaussians, field, model, camera,
+    frame)."""
     means = torch.tensor([[0.0, 0.0, 20.0], [0.0, 0.0, 14.0]])
     gaussians = GaussianModel.from_points(means, torch.full((2, 3), 0.5),
-                                          GaussianConfig(init_opacity=0.99),
+                                          GaussianConfig(init_opacity=opacity),
                                           {SEMANTIC_KEY: torch.tensor([4.0, -4.0])})
     with torch.no_grad():
         gaussians.params["log_scales"].fill_(math.log(3.0))
@@ -301,6 +318,15 @@ def test_mask_loss_never_flips_tissue_hidden_behind_the_tool():
     full = torch.ones(camera.height, camera.width, dtype=torch.bool)
     frame = Frame(0, 0.0, torch.zeros(camera.height, camera.width, 3), None, False, camera,
                   tool=full, fov=full)
+    return gaussians, field, model, camera, frame
+
+
+def test_mask_loss_never_flips_tissue_hidden_behind_the_tool():
+    """A large opaque tool Gaussian in front of a tissue Gaussian, under a tool mask covering
+    the image: the hidden tissue's blend weight is ~1e-3, but per-Gaussian Adam would move its
+    logit by ~lr per step regardless. 300 steps at lr 0.05 (15 logit units, past the init 4)
+    must leave it tissue (logit unchanged to 1e-6) while the tool's logit moves towards tool."""
+    gaussians, field, model, camera, frame = _tool_before_tissue(0.99)
     logits = gaussians.params[SEMANTIC_KEY]
     optimiser = torch.optim.Adam([logits], lr=0.05)
     when = FrameTime(0, 0.0)
@@ -320,21 +346,7 @@ def test_no_loss_of_a_step_reaches_the_colour_or_opacity_of_hidden_tissue():
     tool reaches the tool's colour and opacity but not the hidden tissue's (exactly 0: through
     the tool's residual transmittance it would paint the tissue in the tool's colours); with the
     tool moved aside, the tissue's gradient is back."""
-    means = torch.tensor([[0.0, 0.0, 20.0], [0.0, 0.0, 14.0]])
-    gaussians = GaussianModel.from_points(means, torch.full((2, 3), 0.5),
-                                          GaussianConfig(init_opacity=0.9),
-                                          {SEMANTIC_KEY: torch.tensor([4.0, -4.0])})
-    with torch.no_grad():
-        gaussians.params["log_scales"].fill_(math.log(3.0))
-    field = _tool_field()
-    with torch.no_grad():
-        field.rotations.zero_()
-        field.translations.zero_()
-    model = SplatModel(gaussians, {"tool": field})
-    camera = _camera()
-    full = torch.ones(camera.height, camera.width, dtype=torch.bool)
-    frame = Frame(0, 0.0, torch.zeros(camera.height, camera.width, 3), None, False, camera,
-                  tool=full, fov=full)
+    gaussians, field, model, camera, frame = _tool_before_tissue(0.9)
     when = FrameTime(0, 0.0)
 
     def gradients() -> tuple[Tensor, Tensor]:

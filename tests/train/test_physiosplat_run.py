@@ -20,7 +20,7 @@ from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.export.articulation import articulate
 from surgsplat.methods.overrides import apply_values
 from surgsplat.methods.registry import method_config
-from surgsplat.model.physics import SEMANTIC_KEY
+from surgsplat.model.tool_field import SEMANTIC_KEY
 from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import Trainer
 
@@ -28,7 +28,8 @@ from surgsplat.train.trainer import Trainer
 @pytest.mark.slow
 def test_physiosplat_trains_scores_the_tool_free_render_and_writes_its_videos(
         small_phantom, tmp_path):
-    from surgsplat.cli.render_videos import render_command, write_run_videos
+    from surgsplat.cli.render_videos import render_command
+    from surgsplat.pipeline.render import write_run_videos
 
     scene = load_scene(small_phantom)
     config = apply_values(method_config("physiosplat"), {"train": {"iterations": 12}})

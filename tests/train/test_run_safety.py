@@ -7,12 +7,16 @@ import errno
 import json
 import os
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import torch
 
+from surgsplat.atomic import temporary_path
 from surgsplat.data.scene import load_scene
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.registry import method_config
@@ -142,8 +146,16 @@ def test_another_scene_is_refused_with_what_differs(small_phantom, tmp_path):
         check_scene_identity(run, load_scene(other))
 
 
+def temporary_of(process: subprocess.Popen, target: Path) -> Path:
+    """A hidden temporary beside `target` named as process `process` names its own."""
+    name = temporary_path(target).name.replace(f"-{os.getpid()}-", f"-{process.pid}-")
+    return target.with_name(name)
+
+
 def test_one_writer_per_run_folder(tmp_path):
-    orphan = tmp_path / "run" / "checkpoints" / ".latest.123.abcd.tmp.pt"
+    killed = subprocess.Popen([sys.executable, "-c", "pass"])
+    killed.wait()
+    orphan = temporary_of(killed, tmp_path / "run" / "checkpoints" / "latest.pt")
     orphan.parent.mkdir(parents=True)
     orphan.write_bytes(b"left by a kill -9")
     with run_lock(tmp_path / "run", create=True):
@@ -160,3 +172,18 @@ def test_one_writer_per_run_folder(tmp_path):
             pass
     assert not (tmp_path / "missing").exists()
     assert issubclass(DataError, SurgsplatError)
+
+
+def test_the_lock_leaves_the_temporaries_of_running_writers(tmp_path):
+    """A report written into the run while training starts keeps its temporary."""
+    writer = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        for target in (tmp_path / "run" / "report.html", tmp_path / "run" / "videos" / "rgb.mp4"):
+            target.parent.mkdir(parents=True, exist_ok=True)
+            temporary_of(writer, target).write_bytes(b"being written")
+        with run_lock(tmp_path / "run"):
+            left = sorted(p.name for p in (tmp_path / "run").rglob(".*.tmp*"))
+        assert len(left) == 2, left
+    finally:
+        writer.kill()
+        writer.wait()

@@ -7,19 +7,31 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 
+import numpy as np
+import pytest
 import torch
 from torch import Tensor
 
 from surgsplat.data.scene import load_scene
+from surgsplat.errors import SurgsplatError
+from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions
+from surgsplat.export.report import frame_strip, strip_channels, write_report
+from surgsplat.export.viewer import view_image, viewer_channels
 from surgsplat.methods.registry import method_config
 from surgsplat.methods.settings import LossWeight
-from surgsplat.model.component import (Component, ComponentConfig, FrameTime, RenderContext,
-                                       SetupContext)
+from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
+from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
+                                       RenderContext, SetupContext)
 from surgsplat.model.dynamic import render_frame
+from surgsplat.pipeline.evaluate import evaluate
+from surgsplat.pipeline.render import write_run_videos
+from surgsplat.pipeline.train import train_run
 from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, LOG_FILE, Trainer
 
+PACKAGE = Path(__file__).resolve().parents[2] / "surgsplat"
 ATTRIBUTE = "toy_logit"
 TARGET = 0.25
 
@@ -158,3 +170,100 @@ def test_densify_weights_and_opacity_factor_reach_the_strategy(small_phantom, tm
     assert remaining < count  # rendered 0.275 < 0.3 pruned; no clone or split added any
     assert remaining >= count // 2 - 1
     assert torch.all(torch.sigmoid(trainer.model.gaussians.params["opacity_logits"]) > 0.6)
+
+
+@dataclass
+class FrameClockConfig(ComponentConfig, kind="toy_frame_clock"):
+    """Contributes two metrics of its own to metrics.json, with their conventions."""
+
+    label: str = "time"
+    """Word the conventions use for a frame's time."""
+
+    def build(self) -> "FrameClockComponent":
+        return FrameClockComponent(self)
+
+
+class FrameClockComponent(Component):
+    def __init__(self, config: FrameClockConfig):
+        super().__init__()
+        self.config = config
+
+    def frame_diagnostics(self, state, gaussians, when) -> Diagnostics:
+        return Diagnostics(summed={"clock_frames": 1}, averaged={"clock_time": when.time},
+                           conventions={"clock_time": f"the test frames' {self.config.label}, "
+                                                      "mean",
+                                        "clock_frames": "test frames seen"})
+
+
+def test_a_component_contributes_metrics_and_their_conventions(small_phantom, tmp_path):
+    """A component defined here reaches metrics.json through `surgsplat eval`'s pipeline: its
+    averaged and summed metrics, the frames they cover, and the conventions its config words."""
+    config = toy_method(4)
+    config.components["clock"] = FrameClockConfig(label="clock reading")
+    train_run(config, small_phantom, tmp_path / "run", resume=False)
+    run = load_trained_run(tmp_path / "run")
+    evaluate(run, EvalOptions(geometry=False))
+    metrics = json.loads((tmp_path / "run" / METRICS_FILE).read_text())
+    times = [frame.time for frame in run.scene.test_frames]
+    assert metrics["clock_time"] == pytest.approx(sum(times) / len(times))
+    assert metrics["clock_frames"] == metrics["frames_covered"]["diagnostics"] == len(times)
+    assert metrics["conventions"]["clock_time"] == "the test frames' clock reading, mean"
+    assert metrics["conventions"]["clock_frames"] == "test frames seen"
+
+
+MARK = "toy_tool_mark"
+"""The channel of ToolMarkComponent: named by no file under surgsplat/."""
+
+
+@dataclass
+class ToolMarkConfig(ComponentConfig, kind="toy_tool_mark"):
+    """Marks the Gaussians on the positive side of x = 0 as tool and renders that mark."""
+
+    def build(self) -> "ToolMarkComponent":
+        return ToolMarkComponent()
+
+
+class ToolMarkComponent(Component):
+    def tool_members(self, gaussians) -> Tensor:
+        return gaussians.params["means"].detach()[:, 0] > 0
+
+    def render_channels(self, state, gaussians, camera, when) -> dict[str, Tensor]:
+        return {MARK: self.tool_members(gaussians).float()}
+
+    def channel_descriptors(self) -> tuple[ChannelDescriptor, ...]:
+        return (ChannelDescriptor(MARK, ChannelKind.PROBABILITY, Colormap.INFERNO),)
+
+
+def test_a_component_declares_tool_members_and_a_channel_that_videos_viewer_and_report_show(
+        small_phantom, tmp_path):
+    """A component defined here says which Gaussians are tool, and adds a channel with its
+    descriptor: the model's membership is its, and the channel becomes a video, a choice of the
+    viewer and a panel of the report, without surgsplat naming it."""
+    assert not [path for path in PACKAGE.rglob("*.py") if MARK in path.read_text()]
+    config = toy_method(4)
+    config.components["mark"] = ToolMarkConfig()
+    Trainer(config, load_scene(small_phantom), tmp_path / "run").fit()
+    run = load_trained_run(tmp_path / "run")
+    tool = run.model.gaussians.params["means"].detach()[:, 0] > 0
+    assert 0 < int(tool.sum()) < tool.numel()
+    assert torch.equal(run.model.tool_members(), tool)
+    assert torch.equal(run.model.tissue_members(), ~tool)
+
+    paths = write_run_videos(run, tmp_path / "videos", 5.0, ("rgb", MARK))
+    assert [path.name for path in paths] == ["rgb.mp4", f"{MARK}.mp4"]
+    assert all(path.stat().st_size > 0 for path in paths)
+    with pytest.raises(SurgsplatError, match=f"--channels: .*{MARK}.*got rgb, albedo"):
+        write_run_videos(run, tmp_path / "videos", 5.0, ("rgb", "albedo"))
+
+    assert MARK in viewer_channels(run.model)
+    frame = run.scene.frames[0]
+    image = view_image(run, frame.camera, 0, MARK)
+    assert image.shape == (frame.camera.height, frame.camera.width, 3)
+    assert image.dtype == np.uint8 and image.std() > 10  # the marked half stands out
+
+    assert MARK in [channel.name for channel in strip_channels(run.model)]
+    strip = frame_strip(run, run.scene.test_frames[0])
+    assert strip.shape[1] == (3 + len(strip_channels(run.model))) * frame.camera.width
+    (tmp_path / "run" / METRICS_FILE).write_text(json.dumps({"psnr_tissue": 20.0}))
+    page = write_report([tmp_path / "run"], tmp_path / "report.html", max_frames=1).read_text()
+    assert f"| {MARK}</figcaption>" in page

@@ -1,0 +1,162 @@
+"""Metric families of the render against the scene's pictures: its images and depth maps, and
+where a phantom has them, the tissue the tool hid, the highlights and the albedo and shading.
+
+Image metrics exclude tool pixels in two named conventions (see image_metrics.py); depth error
+is over tissue pixels with valid depth. What the tool hid is scored over the tool pixels (inside
+the field of view) of each test frame, the render against the tissue-only image
+(gt/tissue_images) and depth (gt/tissue_depth); a method that separates the tool is scored there
+on its tissue-only render. Highlights are scored where the phantom marks them (gt/highlights);
+the reflectance x illumination decomposition where it has gt/albedo (see decomposition.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from surgsplat.data.layout import frame_stem
+from surgsplat.data.phantom.generate import HIGHLIGHTS_DIR, TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
+from surgsplat.data.scene import Frame, read_image, read_npy, read_tool_mask
+from surgsplat.eval.decomposition import (CONVENTIONS as DECOMPOSITION_CONVENTIONS,
+                                         DecompositionScores)
+from surgsplat.eval.geometry_metrics import depth_rmse
+from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
+from surgsplat.eval.lpips import load_lpips, lpips_distance
+from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
+from surgsplat.model.component import FrameTime
+from surgsplat.model.dynamic import render_frame
+from surgsplat.train.run import TrainedRun
+
+
+class ImageFamily(MetricFamily):
+    """psnr_*, ssim*, lpips of the render against the frame's image, tool pixels excluded."""
+
+    name = "image"
+
+    def __init__(self, run: TrainedRun, options: EvalOptions):
+        super().__init__(run, options)
+        self.lpips_model, self.lpips_reason = load_lpips(options.alexnet_weights)
+
+    def score(self, view: FrameView) -> dict[str, float]:
+        pred, gt, tissue = view.rgb, view.frame.image, view.frame.tissue
+        row = {"psnr_zeroed": psnr_zeroed(pred, gt, tissue),
+               "psnr_tissue": psnr_tissue(pred, gt, tissue),
+               "ssim": ssim_zeroed(pred, gt, tissue),
+               "ssim_tissue": ssim_tissue(pred, gt, tissue)}
+        if self.lpips_model is not None:
+            row["lpips"] = lpips_distance(self.lpips_model, pred, gt, tissue)
+        return row
+
+    def unavailable(self) -> dict:
+        if self.lpips_model is not None:
+            return {}
+        return {"lpips": None, "lpips_note": self.lpips_reason}
+
+    def conventions(self) -> dict[str, str]:
+        return {"psnr_zeroed": "tool pixels set to 0 in both images, mean over all pixels",
+                "psnr_tissue": "mean squared error over tissue pixels only",
+                "ssim": "as ssim_zeroed: tool pixels zeroed, SSIM map averaged over all pixels",
+                "lpips": "AlexNet LPIPS v0.1, inputs scaled to [-1, 1], tool pixels zeroed"}
+
+
+class DepthFamily(MetricFamily):
+    """depth_rmse of the rendered depth against the frame's depth map."""
+
+    name = "depth"
+
+    def score(self, view: FrameView) -> dict[str, float]:
+        frame = view.frame
+        if frame.depth is None or not (frame.tissue & (frame.depth > 0)).any():
+            return {}
+        return {"depth_rmse": depth_rmse(view.render.depth, frame.depth, frame.tissue)}
+
+    def conventions(self) -> dict[str, str]:
+        return {"depth_rmse": "over tissue pixels with valid depth"}
+
+
+class SpecularFamily(MetricFamily):
+    """psnr_specular over the highlights the phantom marks."""
+
+    name = "specular"
+
+    def score(self, view: FrameView) -> dict[str, float]:
+        return specular_row(view.rgb, view.frame, view.run.scene.root)
+
+    def conventions(self) -> dict[str, str]:
+        return {"psnr_specular": "render vs image over the tissue pixels gt/highlights marks, "
+                                 "frames with such pixels"}
+
+
+class OccludedFamily(MetricFamily):
+    """psnr_occluded, depth_rmse_occluded: the tissue the tool hid."""
+
+    name = "occluded"
+
+    def score(self, view: FrameView) -> dict[str, float]:
+        hidden, run, frame = view.render, view.run, view.frame
+        if run.model.separates_tool:
+            hidden = render_frame(run.model, frame.camera,
+                                  FrameTime(frame.index, frame.time, tissue_only=True),
+                                  view.background)
+        return occluded_row(hidden.rgb.clamp(0, 1), hidden.depth, frame, run.scene.root)
+
+    def conventions(self) -> dict[str, str]:
+        return {"psnr_occluded": "render vs gt/tissue_images over the tool pixels inside the "
+                                 "field of view of each test frame (what the tool hid), frames "
+                                 "with tool pixels",
+                "depth_rmse_occluded": "render vs gt/tissue_depth over the same pixels",
+                "occluded_render": "tissue-only render (tool left out) for methods that "
+                                   "separate the tool, else the ordinary render"}
+
+
+class DecompositionFamily(MetricFamily):
+    """reflectance_error, r_var, shading_error over every test frame with gt/albedo."""
+
+    name = "decomposition"
+
+    def __init__(self, run: TrainedRun, options: EvalOptions):
+        super().__init__(run, options)
+        self.scores = DecompositionScores()
+
+    def score(self, view: FrameView) -> dict[str, float]:
+        self.scores.add(view.frame, view.render.extras, view.render.rgb, view.run.scene.root)
+        return {}
+
+    def pooled(self) -> dict:
+        return self.scores.metrics()
+
+    def pooled_frames(self) -> int:
+        return len(self.scores.reflectance)
+
+    def conventions(self) -> dict[str, str]:
+        return dict(DECOMPOSITION_CONVENTIONS)
+
+
+def occluded_row(rgb: torch.Tensor, depth: torch.Tensor, frame: Frame,
+                 scene_root: Path) -> dict[str, float]:
+    """psnr_occluded and depth_rmse_occluded of one frame: the render rgb [H, W, 3] and depth
+    [H, W] over the frame's tool pixels inside the FOV, against the tissue the tool hid. Empty
+    when the scene has no gt/tissue_images for the frame or the frame shows no tool."""
+    image_path = scene_root / TISSUE_IMAGES_DIR / f"{frame_stem(frame.index)}.png"
+    occluded = frame.tool & frame.fov
+    if not image_path.is_file() or not occluded.any():
+        return {}
+    truth = torch.from_numpy(read_image(image_path)).float() / 255.0
+    row = {"psnr_occluded": psnr_tissue(rgb, truth, occluded)}
+    depth_path = scene_root / TISSUE_DEPTH_DIR / f"{frame_stem(frame.index)}.npy"
+    if depth_path.is_file():
+        truth_depth = torch.from_numpy(read_npy(depth_path))
+        if (occluded & (truth_depth > 0)).any():
+            row["depth_rmse_occluded"] = depth_rmse(depth, truth_depth, occluded)
+    return row
+
+
+def specular_row(pred: torch.Tensor, frame: Frame, scene_root: Path) -> dict[str, float]:
+    """psnr_specular of one frame: the render [H, W, 3] over the tissue pixels the phantom marks
+    as highlight (gt/highlights); empty without the file or such pixels."""
+    path = scene_root / HIGHLIGHTS_DIR / f"{frame_stem(frame.index)}.png"
+    if not path.is_file():
+        return {}
+    highlight = frame.tissue & torch.from_numpy(read_tool_mask(path))  # 255 = marked
+    return {"psnr_specular": psnr_tissue(pred, frame.image, highlight)} if highlight.any() else {}

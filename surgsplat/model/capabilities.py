@@ -1,0 +1,57 @@
+"""Capabilities that other layers ask a method's components for, as declared interfaces.
+
+A component offers one by returning an object with the interface from its contract hook
+(`Component.signed_distance_field`, `Component.relighting`, `Component.tool_motion`; usually
+itself), and `SplatModel` asks its components in order, so that no caller looks for a concrete
+class or probes for attributes; a caller that cannot do without one says so with `required`.
+"""
+
+from __future__ import annotations
+
+from contextlib import AbstractContextManager
+from typing import Protocol, TypeVar
+
+from torch import Tensor
+
+from surgsplat.errors import SurgsplatError
+
+Offered = TypeVar("Offered")
+
+UNIFORM = "uniform"
+"""Relighting source: the mean illumination state of the training frames."""
+
+
+class SignedDistanceField(Protocol):
+    """A canonical signed distance field whose zero level is the tissue surface (meshes are
+    extracted from it)."""
+
+    box: Tensor
+    """[2, 3] (low, high) corners of the canonical box the field describes, scene units."""
+
+    def signed_distance(self, points: Tensor) -> Tensor:
+        """[P, 3] canonical points -> [P] signed distances (scene units, > 0 in front of the
+        surface, on the camera side)."""
+
+
+class Relighting(Protocol):
+    """An illumination state that renders can be made under instead of their own."""
+
+    def relit(self, source: str | int) -> AbstractContextManager[None]:
+        """While the block runs, render every time under illumination `source`: UNIFORM or a
+        frame index (SurgsplatError for any other)."""
+
+
+class ToolMotion(Protocol):
+    """The rigid motion of the tool Gaussians (those of `Component.tool_members`), frame by
+    frame: what the tool's articulation is estimated from."""
+
+    def pose(self, index: int) -> tuple[Tensor, Tensor]:
+        """Rotation vector [3] and translation [3] (scene units) taking the canonical tool to
+        frame `index`."""
+
+
+def required(capability: Offered | None, missing: str) -> Offered:
+    """`capability` as the model offers it; SurgsplatError(`missing`) when it offers none."""
+    if capability is None:
+        raise SurgsplatError(missing)
+    return capability

@@ -1,0 +1,111 @@
+"""Train a method on a scene into a run folder, or resume its run: build (or load) the Trainer,
+fit it, then estimate the tool's articulation (methods with a tool field).
+
+`train_run` does all three; a caller that shows progress calls `start_training`, `fit` and
+`after_training` itself. Lines for the user go to a `note` callback."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from surgsplat.data.scene import load_scene
+from surgsplat.errors import SurgsplatError
+from surgsplat.export.articulation import ARTICULATION_FILE
+from surgsplat.methods.config import MethodConfig
+from surgsplat.methods.overrides import apply_values
+from surgsplat.pipeline.articulate import articulate_run, articulation_summary
+from surgsplat.train.checkpoint import previous_path
+from surgsplat.train.run import load_trained_run, read_run_config, read_run_scene
+from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, SCENE_FILE, StepStats, Trainer
+
+Note = Callable[[str], None]
+"""Receives a line for the user (a warning or a summary)."""
+
+
+def quiet(text: str) -> None:
+    """A `Note` that drops the line."""
+
+
+def check_new_run_folder(out: Path) -> None:
+    """SurgsplatError unless `out` may receive a new run: absent, an empty folder, or a run
+    folder (its config.json and scene.txt present; one holding a checkpoint is then refused
+    with a hint to --resume). Any other folder holds a user's files that the run would
+    replace."""
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    if not ((out / CONFIG_FILE).is_file() and (out / SCENE_FILE).is_file()):
+        raise SurgsplatError(f"{out}: is not empty and is not a surgsplat run folder; choose a "
+                             "new or empty --out (a run writes config.json, scene.json, ... "
+                             "there, replacing files of the same name)")
+
+
+def start_training(config: MethodConfig, data: Path | None, out: Path, resume: bool,
+                   iterations: int | None = None, note: Note = quiet) -> Trainer:
+    """A Trainer of a new run in `out`, or of the run there resumed from its checkpoint.
+
+    On resume the run's saved config is used (`config` only names the method), with
+    `iterations` replacing its length when given.
+    """
+    checkpoint = out / CHECKPOINT
+    if resume:
+        if not checkpoint.is_file():
+            raise SurgsplatError(f"{checkpoint}: nothing to resume (no checkpoint in {out})")
+        config = read_run_config(out)
+        scene = read_run_scene(out, data)
+    else:
+        if data is None:
+            raise SurgsplatError("--data is required unless --resume continues a run")
+        if checkpoint.is_file():
+            raise SurgsplatError(f"{out} already holds a run; pass --resume to continue it or "
+                                 "choose another --out")
+        scene = load_scene(data)
+    if iterations is not None:
+        if iterations <= 0:
+            raise SurgsplatError(f"--iters must be positive, got {iterations}")
+        config = apply_values(config, {"train": {"iterations": iterations}}, where="--iters")
+    trainer = Trainer(config, scene, out)
+    if resume:
+        damaged = trainer.load(checkpoint)
+        if damaged is not None:
+            note(f"{damaged}; continuing from the checkpoint kept before it, "
+                 f"{previous_path(checkpoint)}")
+        if trainer.iteration > trainer.config.train.iterations:
+            raise SurgsplatError(f"{out} is at iteration {trainer.iteration}, past --iters "
+                                 f"{trainer.config.train.iterations}; a run cannot be shortened")
+    return trainer
+
+
+def fit(trainer: Trainer, on_step: Callable[[StepStats], None] | None = None) -> None:
+    """Train to the end (`on_step` after every step); Ctrl-C leaves a checkpoint and a
+    SurgsplatError saying how to continue."""
+    try:
+        trainer.fit(on_step)
+    except KeyboardInterrupt:
+        raise SurgsplatError(f"interrupted at iteration {trainer.iteration}; checkpoint saved "
+                             f"to {trainer.run_dir / CHECKPOINT}; continue with --resume") \
+            from None
+
+
+def after_training(trainer: Trainer, data: Path | None, note: Note = quiet) -> None:
+    """Estimate and write the tool's articulation of a method with a tool field (noted in one
+    line, or why it could not be estimated)."""
+    if trainer.model.tool_motion() is None:
+        return
+    try:
+        articulation = articulate_run(load_trained_run(trainer.run_dir, data))
+    except SurgsplatError as err:
+        note(f"no articulation: {err}")
+        return
+    note(articulation_summary(articulation, trainer.run_dir / ARTICULATION_FILE))
+
+
+def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
+              iterations: int | None = None, on_step: Callable[[StepStats], None] | None = None,
+              note: Note = quiet) -> Trainer:
+    """Build (or resume) a Trainer, run it to the end, articulate the tool; see the functions
+    it calls."""
+    trainer = start_training(config, data, out, resume, iterations, note)
+    fit(trainer, on_step)
+    after_training(trainer, data, note)
+    return trainer
