@@ -187,8 +187,12 @@ def physiosplat() -> MethodConfig:
     34.5 dB, ARAP strain 0, depth_rmse_occluded 2.17 against 1.24 mm); a sweep in between
     remains to be measured at full length.
     The specular albedo starts at 0.01, not 0.1 (see SpecularConfig.init_albedo);
-    the lobe is shaded from a smoothed depth; the mask loss does not move the semantic logits
-    of tissue hidden behind the tool (see ToolField.losses)."""
+    the lobe is shaded from a smoothed depth; no loss of a step moves the semantic logit, colour
+    or opacity of tissue hidden behind the tool (see ToolField.losses); the collision's tool
+    proxy is balls around the tool Gaussians, not their convex hull (see model.physics).
+    Full phantom, 3000 iterations, seed 0: psnr_tissue 39.13 dB before the last two, 39.84 with
+    the gate, 40.23 with both; collisions 952 -> 29; the tool-free render's hole remained
+    (psnr_occluded 12.8 -> 13.6 dB; issue 28)."""
     return MethodConfig(
         name="physiosplat",
         components={"deformation": HexPlaneConfig(volume_samples=512), "tool": ToolFieldConfig(),
