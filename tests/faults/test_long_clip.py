@@ -39,24 +39,26 @@ def count_decodes(monkeypatch) -> list[str]:
     return threads
 
 
+def assert_named_before_decoding(scene, monkeypatch, path, match: str) -> None:
+    """load_scene stops with a DataError naming `path` (message matching `match`) before any
+    frame is decoded."""
+    decodes = count_decodes(monkeypatch)
+    with pytest.raises(DataError, match=match) as caught:
+        load_scene(scene)
+    assert caught.value.path == path
+    assert decodes == []
+
+
 def test_a_truncated_last_frame_is_named_before_any_frame_is_decoded(scene, monkeypatch):
     last = sorted((scene / "depth").iterdir())[-1]
     last.write_bytes(last.read_bytes()[:-20])
-    decodes = count_decodes(monkeypatch)
-    with pytest.raises(DataError, match="truncated") as caught:
-        load_scene(scene)
-    assert caught.value.path == last
-    assert decodes == []
+    assert_named_before_decoding(scene, monkeypatch, last, "truncated")
 
 
 def test_a_frame_of_another_size_is_named_before_any_frame_is_decoded(scene, monkeypatch):
     mask = sorted((scene / "masks").iterdir())[-2]
     Image.new("L", (20, 20)).save(mask)
-    decodes = count_decodes(monkeypatch)
-    with pytest.raises(DataError, match="20x20") as caught:
-        load_scene(scene)
-    assert caught.value.path == mask
-    assert decodes == []
+    assert_named_before_decoding(scene, monkeypatch, mask, "20x20")
 
 
 def test_frames_decode_on_several_threads_and_the_first_bad_one_is_named(scene, monkeypatch):
