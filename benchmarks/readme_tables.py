@@ -2,7 +2,8 @@
 benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of README.md, for the
 benchmarks bench_render, bench_train, bench_densify_split, bench_threads, bench_outputs,
-bench_auto_masks, bench_shading_depth, bench_batch, bench_long_clip and bench_articulation, and
+bench_auto_masks, bench_shading_depth, bench_batch, bench_long_clip, bench_articulation,
+bench_faults and bench_onnx_models, and
 for every suite of bench_methods whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
 hand.
 
@@ -264,6 +265,28 @@ def articulation_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def onnx_models_table(report: dict) -> str:
+    """Markdown for one bench_onnx_models report: seconds per frame through ONNX Runtime and
+    through the exporting PyTorch network, per input size and batch."""
+    system = report["system"]
+    lines = [
+        f"{report['cpu']} ({system['logical_cpus']} logical CPUs, {system['torch_threads']} "
+        f"threads), {report['network']}, {report['parameters'] / 1e6:.2f}M parameters, "
+        f"{report['frame_size_wh'][0]}x{report['frame_size_wh'][1]} frames, load average "
+        f"{report['load_average_1min']['start']:.1f} at the start, {report['date'][:10]}:",
+        "",
+        "| input | batch | s/frame (wall) | CPU s/frame | PyTorch s/frame | ONNX / PyTorch |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in report["rows"]:
+        width, height = row["input_size_wh"]
+        lines.append(f"| {width}x{height} | {row['batch']} | {cell(row, 'seconds_per_frame', '.3f')} "
+                     f"| {cell(row, 'cpu_seconds_per_frame', '.3f')} "
+                     f"| {cell(row, 'torch_seconds_per_frame', '.3f')} "
+                     f"| {cell(row, 'onnx_to_torch_ratio', '.2f')} |")
+    return "\n".join(lines)
+
+
 def train_table(report: dict) -> str:
     """Markdown for one bench_train report: one row per training run, then issue 10's targets
     beside what was measured."""
@@ -320,7 +343,7 @@ RENDERERS = {"bench_render": render_table, "bench_train": train_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
              "bench_shading_depth": shading_depth_table, "bench_batch": methods_table,
              "bench_long_clip": long_clip_table, "bench_articulation": articulation_table,
-             "bench_faults": faults_table}
+             "bench_faults": faults_table, "bench_onnx_models": onnx_models_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A README region of one bench_methods suite, e.g. bench_methods_endoplanar."""
 

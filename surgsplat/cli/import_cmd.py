@@ -13,6 +13,9 @@ from surgsplat.cli.info import print_summary_table
 from surgsplat.cli.progress import progress_bar
 from surgsplat.data.importer import ImportConfig, import_scene
 from surgsplat.data.layout import META_FILE, SceneMeta
+from surgsplat.data.learned_priors import (DEPTH_OUTPUTS, TOOL_OUTPUTS, DepthNetworkConfig,
+                                           ToolSegmenterConfig)
+from surgsplat.data.onnx_models import IMAGENET_MEAN, IMAGENET_STD, ModelInput
 from surgsplat.data.shading_depth import ShadingDepthConfig
 from surgsplat.data.stereo import SGBM_MODES, StereoConfig
 from surgsplat.data.tool_masks import MASK_MATCHES
@@ -30,14 +33,65 @@ def parse_labels(text: str | None) -> tuple[int, ...] | None:
                              f"{text!r}") from None
 
 
-def parse_size(text: str | None) -> tuple[int, int] | None:
+def parse_size(text: str | None, option: str = "--resize") -> tuple[int, int] | None:
     """"640x360" -> (640, 360) as (width, height)."""
     if text is None:
         return None
     parts = text.lower().split("x")
     if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
-        raise SurgsplatError(f"--resize expects WIDTHxHEIGHT, e.g. 640x360, got {text!r}")
+        raise SurgsplatError(f"{option} expects WIDTHxHEIGHT, e.g. 640x360, got {text!r}")
     return int(parts[0]), int(parts[1])
+
+
+def parse_triple(text: str, option: str) -> tuple[float, float, float]:
+    """"0.485,0.456,0.406" -> (0.485, 0.456, 0.406)."""
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3:
+        raise SurgsplatError(f"{option} expects three comma-separated numbers (R,G,B), got "
+                             f"{text!r}")
+    return values
+
+
+def model_input(size: str | None, multiple: int, mean: str, std: str, batch: int,
+                prefix: str) -> ModelInput:
+    """A model's ModelInput from the CLI options named `prefix`-input, -multiple, -mean, -std;
+    `size` is WIDTHxHEIGHT or one number, the short side."""
+    short_side = None
+    if size is not None and size.strip().isdigit():
+        short_side, size = int(size), None
+    return ModelInput(size=parse_size(size, f"{prefix}-input (or one number, the short side)"),
+                      short_side=short_side, multiple=multiple,
+                      mean=parse_triple(mean, f"{prefix}-mean"),
+                      std=parse_triple(std, f"{prefix}-std"), batch=batch)
+
+
+CONTRACT = ("ONNX Runtime on the CPU (pip install 'surgsplat[onnx]'; no weights are shipped or "
+            "fetched). Contract: one float32 NCHW input [N, 3, h, w], RGB, (pixel / 255 - mean) "
+            "/ std, h x w the model's own if fixed, else from the -input option, else the frame "
+            "size; one output [N, 1, h', w'] or [N, h', w'] at the input's aspect ratio, resized "
+            "back to the frame bilinearly.")
+"""The shared model contract, for --help (surgsplat.data.onnx_models states it in full)."""
+IMAGENET = ",".join(f"{v:g}" for v in IMAGENET_MEAN), ",".join(f"{v:g}" for v in IMAGENET_STD)
+"""ImageNet's mean and std as the CLI spells them."""
+InputSizeOption = Annotated[str | None, typer.Option(
+    help="Input size of the model when its own is not fixed: WIDTHxHEIGHT, or one number, the "
+         "short side (keeping the frames' aspect ratio; e.g. 518 for Depth Anything). Default: "
+         "the frame size.")]
+"""--tool-segmenter-input and --depth-model-input."""
+MultipleOption = Annotated[int, typer.Option(
+    help="Round both input sides chosen by the -input option (or the frame size) to a multiple "
+         "of this: 14 for Depth Anything, 32 for a five-level UNet.")]
+"""--tool-segmenter-multiple and --depth-model-multiple."""
+MeanOption = Annotated[str, typer.Option(
+    help="R,G,B mean subtracted from pixel / 255 (default ImageNet's; 0,0,0 with std 1,1,1 for "
+         "0..1 input).")]
+"""--tool-segmenter-mean and --depth-model-mean."""
+StdOption = Annotated[str, typer.Option(
+    help="R,G,B standard deviation dividing pixel / 255 - mean (default ImageNet's).")]
+"""--tool-segmenter-std and --depth-model-std."""
 
 
 def import_command(
@@ -63,18 +117,51 @@ def import_command(
     auto_tool_masks: Annotated[bool, typer.Option(
         help="Find the tools (grey metal, black plastic) in every frame automatically, for "
              "video without --masks; scene.json records that the masks are automatic.")] = False,
+    tool_segmenter: Annotated[Path | None, typer.Option(
+        help="ONNX tool segmenter (MODEL.onnx) whose per-pixel tool probability gives the tool "
+             "masks, inside the field of view; scene.json records the model. " + CONTRACT
+             + " Its output is the tool's logit or probability "
+             "(--tool-segmenter-output); a two-class model fits by giving "
+             "logit(tool) - logit(background).")] = None,
+    tool_segmenter_output: Annotated[str, typer.Option(
+        help=f"What the tool segmenter's output holds: {' or '.join(TOOL_OUTPUTS)}.")
+    ] = ToolSegmenterConfig.output,
+    tool_segmenter_threshold: Annotated[float, typer.Option(
+        help="Tool probability at and above which a pixel is tool.")
+    ] = ToolSegmenterConfig.threshold,
+    tool_segmenter_input: InputSizeOption = None,
+    tool_segmenter_multiple: MultipleOption = ModelInput.multiple,
+    tool_segmenter_mean: MeanOption = IMAGENET[0],
+    tool_segmenter_std: StdOption = IMAGENET[1],
     fov_mask: Annotated[bool, typer.Option(
         help="Find the circular field of view (black border) and write it to fov_mask.png, "
              "apart from the tool masks.")] = True,
     depth: Annotated[str, typer.Option(
-        help="Monocular depth prior: none, or shading (relative depth from the light at the "
-             "camera, I ~ albedo cos / r^2; one unknown scale, train with "
-             "--set components.depth.form=scale_invariant).")] = "none",
+        help="Monocular depth prior: none, shading (relative depth from the light at the "
+             "camera, I ~ albedo cos / r^2), or MODEL.onnx, a depth network giving relative "
+             "inverse depth (or depth, --depth-model-output). " + CONTRACT + " Depth is 1 / "
+             "output with its shift taken as 0, unknown where the output is not positive. "
+             "Shading and model depth have one unknown scale: every frame's median depth is set "
+             "to --shading-median-depth or --depth-model-median-depth; train with "
+             "--set components.depth.form=scale_invariant.")] = "none",
     shading_gamma: Annotated[float, typer.Option(
         help="Display gamma of the frames for --depth shading (1 = linear).")] = 2.2,
     shading_median_depth: Annotated[float, typer.Option(
         help="Median depth of every frame for --depth shading, in scene units (the unknown "
              "absolute scale; 50 is also the distance training assumes without depth).")] = 50.0,
+    depth_model_output: Annotated[str, typer.Option(
+        help=f"What the --depth MODEL.onnx output holds: {' or '.join(DEPTH_OUTPUTS)} (both "
+             "relative).")] = DepthNetworkConfig.output,
+    depth_model_median_depth: Annotated[float, typer.Option(
+        help="Median depth of every frame for --depth MODEL.onnx, in scene units (the unknown "
+             "absolute scale).")] = DepthNetworkConfig.median_depth,
+    depth_model_input: InputSizeOption = None,
+    depth_model_multiple: MultipleOption = ModelInput.multiple,
+    depth_model_mean: MeanOption = IMAGENET[0],
+    depth_model_std: StdOption = IMAGENET[1],
+    model_batch: Annotated[int, typer.Option(
+        help="Frames per run of an ONNX model whose batch size is not fixed (else the model's "
+             "own batch size).")] = ModelInput.batch,
     right: Annotated[Path | None, typer.Option(
         help="Right-camera video or folder of a stereo pair. Both cameras must be RECTIFIED "
              "(corresponding points on the same row); depth = focal x baseline / "
@@ -119,8 +206,17 @@ def import_command(
         pattern=pattern, masks=masks, mask_pattern=mask_pattern,
         tool_labels=parse_labels(tool_labels), mask_match=mask_match,
         allow_missing_masks=allow_missing_masks, auto_tool_masks=auto_tool_masks,
+        tool_segmenter=tool_segmenter, segmenter=ToolSegmenterConfig(
+            input=model_input(tool_segmenter_input, tool_segmenter_multiple,
+                              tool_segmenter_mean, tool_segmenter_std, model_batch,
+                              "--tool-segmenter"),
+            output=tool_segmenter_output, threshold=tool_segmenter_threshold),
         fov_mask=fov_mask, depth=depth, shading=ShadingDepthConfig(
             gamma=shading_gamma, median_depth=shading_median_depth),
+        depth_network=DepthNetworkConfig(
+            input=model_input(depth_model_input, depth_model_multiple, depth_model_mean,
+                              depth_model_std, model_batch, "--depth-model"),
+            output=depth_model_output, median_depth=depth_model_median_depth),
         right=right,
         baseline=baseline, disparity_only=disparity_only, depth_unit=depth_unit,
         stereo=StereoConfig(num_disparities=num_disparities, mode=stereo_mode), focal=focal,
@@ -153,7 +249,9 @@ def print_import_table(scene_dir: Path) -> None:
     fov = extra["fov_mask"]
     table.add_row("field of view", fov if isinstance(fov, str) else
                   f"{fov['kind']}, {100 * fov['inside_share']:.1f}% of pixels inside")
-    if extra.get("masks", {}).get("automatic"):
+    if extra.get("masks", {}).get("segmenter") == "onnx":
+        table.add_row("tool masks", f"ONNX segmenter {extra['masks']['model']}")
+    elif extra.get("masks", {}).get("automatic"):
         table.add_row("tool masks", "automatic (classical segmenter)")
     elif "masks" in extra:
         table.add_row("tool labels", str(extra["masks"]["tool_labels"]))

@@ -7,6 +7,11 @@ poses_bounds.npy (one static camera), and scene.json: the camera's full intrinsi
 cy of the written frames) and, under `extra`, the source, the frame selection, how the camera
 was obtained, the field of view and the stereo settings.
 
+Without labels, tool masks come from the classical segmenter (`surgsplat.data.auto_tool_masks`)
+or from an ONNX tool segmenter, and relative depth from the shading prior
+(`surgsplat.data.shading_depth`) or from an ONNX depth network (`surgsplat.data.learned_priors`,
+whose contracts it states); ONNX models are opened and checked before anything is written.
+
 The camera comes from --calibration (an OpenCV file, see `surgsplat.data.calibration`; frames
 and masks are undistorted first when it gives distortion coefficients), from
 --fx/--fy and --cx/--cy, from --focal (square pixels), or from an assumed field of view; a
@@ -35,6 +40,9 @@ from surgsplat.data.calibration import read_calibration
 from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
 from surgsplat.data.frames_source import FrameSource, list_frame_files
 from surgsplat.data.layout import Intrinsics, SceneMeta, SceneWriter, frame_stem, write_image
+from surgsplat.data.learned_priors import (DepthNetworkConfig, ToolSegmenterConfig,
+                                           model_tool_masks, network_depth)
+from surgsplat.data.onnx_models import OnnxModel
 from surgsplat.data.shading_depth import ShadingDepthConfig, shading_depth
 from surgsplat.data.stereo import StereoConfig, disparity_to_depth, stereo_disparity
 from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
@@ -49,10 +57,16 @@ MIN_DEPTH_DISPARITY = 1.0
 """Disparities below this (px) are too far to give a usable depth and are stored as 0 (unknown);
 the deepest stored depth is therefore fx x baseline."""
 DEPTH_SOURCES = ("none", "shading")
-"""Monocular depth priors of --depth: none, or near-light shading (surgsplat.data.shading_depth)."""
+"""Monocular depth priors of --depth by name: none, or near-light shading
+(surgsplat.data.shading_depth); a path ending in MODEL_SUFFIX names a depth network instead."""
+MODEL_SUFFIX = ".onnx"
+"""File suffix that makes a --depth value the path of an ONNX depth network."""
 SHADING_DEPTH_UNIT = "relative (shading)"
 """scene.json depth_unit of shading depth: one unknown scale; train with the scale-invariant
 depth loss."""
+NETWORK_DEPTH_UNIT = "relative (depth network)"
+"""scene.json depth_unit of an ONNX depth network's depth: one unknown scale per frame; train
+with the scale-invariant depth loss."""
 FOV_SAMPLE_FRAMES = 100
 """The field of view is estimated on at most this many of the selected frames, evenly spread."""
 
@@ -81,14 +95,21 @@ class ImportConfig:
     """Find the tools in every frame with the classical segmenter (instead of `masks`)."""
     auto_masks: AutoMaskConfig = field(default_factory=AutoMaskConfig)
     """Parameters of the automatic tool segmenter."""
+    tool_segmenter: Path | None = None
+    """ONNX tool segmenter whose per-pixel tool probability gives the tool masks; None = none."""
+    segmenter: ToolSegmenterConfig = field(default_factory=ToolSegmenterConfig)
+    """How the ONNX tool segmenter is fed and read."""
     fov_mask: bool = True
     """Find the circular field of view and write it to fov_mask.png (apart from the tool masks)."""
     fov: FovConfig = field(default_factory=FovConfig)
     """How the field of view is found."""
     depth: str = "none"
-    """Monocular depth prior: one of DEPTH_SOURCES."""
+    """Monocular depth prior: one of DEPTH_SOURCES, or the path of an ONNX depth network
+    (ending in MODEL_SUFFIX)."""
     shading: ShadingDepthConfig = field(default_factory=ShadingDepthConfig)
     """Parameters of the shading depth prior (depth "shading")."""
+    depth_network: DepthNetworkConfig = field(default_factory=DepthNetworkConfig)
+    """How the ONNX depth network is fed and read (depth MODEL.onnx)."""
     right: Path | None = None
     """Right-camera video or folder of the rectified stereo pair; None = monocular."""
     baseline: float | None = None
@@ -151,6 +172,11 @@ class ImportConfig:
             if self.masks is not None:
                 raise SurgsplatError("give either --masks or --auto-tool-masks, not both")
             self.auto_masks.validate()
+        if self.tool_segmenter is not None:
+            if self.masks is not None or self.auto_tool_masks:
+                raise SurgsplatError("give one of --masks, --auto-tool-masks and "
+                                     "--tool-segmenter, not several")
+            self.segmenter.validate()
         if self.tool_labels is not None and (
                 not self.tool_labels or not all(0 <= v <= 65535 for v in self.tool_labels)):
             raise SurgsplatError(f"--tool-labels must list class IDs in 0..65535, got "
@@ -172,19 +198,28 @@ class ImportConfig:
                 raise SurgsplatError(f"--{name} must be positive (pixels), got {given[name]}")
 
     @property
+    def depth_model(self) -> Path | None:
+        """The ONNX depth network named by `depth`, or None."""
+        return Path(self.depth) if self.depth.lower().endswith(MODEL_SUFFIX) else None
+
+    @property
     def knows_focal(self) -> bool:
         """Whether the focal length is given rather than assumed."""
         return self.focal is not None or self.fx is not None or self.calibration is not None
 
     def _validate_stereo(self) -> None:
-        if self.depth not in DEPTH_SOURCES:
+        if self.depth not in DEPTH_SOURCES and self.depth_model is None:
             raise SurgsplatError(f"unknown --depth {self.depth!r}; expected one of "
-                                 f"{', '.join(DEPTH_SOURCES)}")
+                                 f"{', '.join(DEPTH_SOURCES)} or a model file "
+                                 f"*{MODEL_SUFFIX}")
         if self.depth != "none":
             if self.right is not None:
                 raise SurgsplatError(f"give either --right (stereo depth) or --depth "
                                      f"{self.depth}, not both")
-            self.shading.validate()
+            if self.depth_model is None:
+                self.shading.validate()
+            else:
+                self.depth_network.validate()
         if self.right is None:
             if self.baseline is not None or self.disparity_only:
                 raise SurgsplatError("--baseline and --disparity-only need --right")
@@ -277,6 +312,8 @@ class _Plan:
     intrinsics: Intrinsics  # at the output size
     camera_note: str  # how the intrinsics were obtained
     fov: FovEstimate | None  # None = not searched
+    tool_model: OnnxModel | None  # the ONNX tool segmenter, opened and checked
+    depth_model: OnnxModel | None  # the ONNX depth network, opened and checked
 
 
 def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
@@ -304,8 +341,13 @@ def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
     out_size = _output_size(source_size, config)
     intrinsics, camera_note, undistort = _camera(source_size, out_size, config)
     fit = _Fitter(source_size, out_size, undistort)
+    tool_model = (OnnxModel(config.tool_segmenter, config.segmenter.input, out_size)
+                  if config.tool_segmenter is not None else None)
+    depth_model = (OnnxModel(config.depth_model, config.depth_network.input, out_size)
+                   if config.depth_model is not None else None)
     fov = _find_fov(frames, selected, fit, config.fov, report) if config.fov_mask else None
-    return _Plan(frames, right, selected, dropped, mask_of, fit, intrinsics, camera_note, fov)
+    return _Plan(frames, right, selected, dropped, mask_of, fit, intrinsics, camera_note, fov,
+                 tool_model, depth_model)
 
 
 def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progress) -> Path:
@@ -320,9 +362,11 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         meta.depth_unit = config.depth_unit
         # 16-bit range spans depths up to fx x baseline (disparity MIN_DEPTH_DISPARITY px).
         depth_scale = fx * config.baseline / MIN_DEPTH_DISPARITY / 65535
-    if config.depth == "shading":
-        meta.depth_unit = SHADING_DEPTH_UNIT
-        depth_scale = 4 * config.shading.median_depth / 65535  # up to 4x the median depth
+    if config.depth != "none":
+        shading = config.depth_model is None
+        meta.depth_unit = SHADING_DEPTH_UNIT if shading else NETWORK_DEPTH_UNIT
+        median = config.shading.median_depth if shading else config.depth_network.median_depth
+        depth_scale = 4 * median / 65535  # up to 4x the median depth
     writer = SceneWriter(out_dir, fx, meta, depth_scale=depth_scale)
     if plan.fov is not None and plan.fov.kind != "full":
         writer.set_fov(plan.fov.inside)
@@ -331,14 +375,25 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
     fitted = ((index, fit(image, frames.frame_path(index), frames.frame_label(index)),
                right_image) for index, image, right_image in
               _read_pairs(frames, right, plan.selected))
-    automatic = itertools.repeat(None)
+    inside = plan.fov.inside if plan.fov is not None else None
+    automatic = learned_depth = itertools.repeat(None)
+    # The segmenters and the depth network look a few frames ahead (their temporal window or
+    # batch); tee holds only those frames.
     if config.auto_tool_masks:
-        # The segmenter looks a few frames ahead; tee holds only those frames.
         fitted, ahead = itertools.tee(fitted)
-        automatic = auto_tool_masks((image for _, image, _ in ahead),
-                                    plan.fov.inside if plan.fov is not None else None,
-                                    config.auto_masks)
-    for done, ((index, image, right_image), tool) in enumerate(zip(fitted, automatic), 1):
+        automatic = auto_tool_masks((image for _, image, _ in ahead), inside, config.auto_masks)
+    if plan.tool_model is not None:
+        fitted, ahead = itertools.tee(fitted)
+        automatic = model_tool_masks(
+            plan.tool_model, (image for _, image, _ in ahead), inside, config.segmenter,
+            lambda done: report("tool segmenter", done, len(plan.selected)))
+    if plan.depth_model is not None:
+        fitted, ahead = itertools.tee(fitted)
+        learned_depth = plan.depth_model.run(
+            (image for _, image, _ in ahead),
+            lambda done: report("depth network", done, len(plan.selected)))
+    for done, ((index, image, right_image), tool, network_output) in enumerate(
+            zip(fitted, automatic, learned_depth), 1):
         if plan.mask_of is not None:
             mask_path = plan.mask_of[index]
             tool = fit.mask(read_tool_labels(mask_path, config.tool_labels), mask_path)
@@ -353,11 +408,13 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
             else:
                 disparity[disparity < MIN_DEPTH_DISPARITY] = 0.0
                 depth = disparity_to_depth(disparity, fx, config.baseline)
-        if config.depth == "shading":
+        if config.depth != "none":
             outside = (~plan.fov.inside if plan.fov is not None and plan.fov.kind != "full"
                        else np.zeros(image.shape[:2], bool))
             excluded = outside if tool is None else outside | tool
-            depth = shading_depth(image, plan.intrinsics, excluded, config.shading)
+            depth = (shading_depth(image, plan.intrinsics, excluded, config.shading)
+                     if network_output is None else
+                     network_depth(network_output, excluded, config.depth_network))
             depth[depth > 65535 * depth_scale] = 0.0  # beyond the 16-bit range: unknown
         writer.add_frame(image, depth, tool)
         report("import", done, len(plan.selected))
@@ -504,10 +561,23 @@ def _provenance(plan: _Plan, config: ImportConfig) -> dict:
     if config.auto_tool_masks:
         extra["masks"] = {"automatic": True, "segmenter": "surgsplat.data.auto_tool_masks",
                           "config": config.auto_masks.describe()}
+    if plan.tool_model is not None:
+        extra["masks"] = {"automatic": True, "segmenter": "onnx",
+                          "model": str(plan.tool_model.path.resolve()),
+                          "input_size_wh": list(plan.tool_model.input_size[::-1]),
+                          "config": config.segmenter.describe()}
     if config.depth == "shading":
         extra["depth"] = {"source": "shading", "config": config.shading.describe(),
                           "scale": "relative: every frame's median depth is median_depth; train "
                                    "with --set components.depth.form=scale_invariant"}
+    if plan.depth_model is not None:
+        reading = "1 / output" if config.depth_network.output == "inverse_depth" else "output"
+        extra["depth"] = {
+            "source": "onnx", "model": str(plan.depth_model.path.resolve()),
+            "input_size_wh": list(plan.depth_model.input_size[::-1]),
+            "config": config.depth_network.describe(),
+            "scale": f"relative: depth = {reading} (shift 0), every frame's median depth is "
+                     "median_depth; train with --set components.depth.form=scale_invariant"}
     if config.right is not None:
         extra["stereo"] = {
             "right": str(config.right.resolve()), "baseline": config.baseline,
