@@ -29,6 +29,7 @@ from torch import Tensor
 from surgsplat.model.component import Component, FrameTime, SetupContext
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.membership import tissue_members
+from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 
 GEOMETRY_CHANNELS = 10
@@ -87,6 +88,7 @@ class DeformationField(Component, ABC):
     Holds the canonical point cloud's bounding box as buffers (bounds_lo, bounds_hi [3], scene
     units), so that it travels with the field's state_dict into checkpoints.
     """
+    phase = Phase.DEFORMATION
 
     def __init__(self) -> None:
         super().__init__()

@@ -55,6 +55,7 @@ from surgsplat.model.component import (Component, ComponentConfig, FrameTime, Pa
                                        RenderContext, SetupContext)
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.membership import tissue_members
+from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import quaternion_to_matrix
 
@@ -103,6 +104,7 @@ class SDFConfig(ComponentConfig, kind="sdf"):
 
 class SDFField(Component):
     """grids[l]: [1, C, R_l, R_l, R_l]; box: [2, 3] (lo, hi) canonical bounds, scene units."""
+    phase = Phase.OPACITY
 
     def __init__(self, config: SDFConfig):
         super().__init__()

@@ -29,6 +29,7 @@ from torch import Tensor
 
 from surgsplat.model.component import Component, ComponentConfig, RenderContext, SetupContext
 from surgsplat.model.membership import tissue_members
+from surgsplat.model.phases import Phase
 from surgsplat.model.physics import (PHANTOM_EXTENT_MM, NeighbourGraph, arap_strain,
                                      collision_energy, neighbour_graph, tool_proxy)
 
@@ -56,6 +57,7 @@ class BiomechanicsConfig(ComponentConfig, kind="biomechanics"):
 
 class Biomechanics(Component):
     """See the module docstring. extent: the scene extent (scene units), set in `setup`."""
+    phase = Phase.LOSS
 
     def __init__(self, config: BiomechanicsConfig):
         super().__init__()

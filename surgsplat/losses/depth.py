@@ -20,6 +20,7 @@ from torch import Tensor
 from surgsplat.image.depth import valid_depth_pixels
 from surgsplat.losses.occlusion import OcclusionImportance
 from surgsplat.model.component import Component, ComponentConfig, RenderContext, SetupContext
+from surgsplat.model.phases import Phase
 
 
 def _mean_over(errors: Tensor, valid: Tensor, weights: Tensor | None = None) -> Tensor:
@@ -96,6 +97,7 @@ class DepthLossConfig(ComponentConfig, kind="depth_loss"):
 class DepthLoss(Component):
     """Loss term "depth": the configured depth loss over the frame's tissue pixels with a measured
     depth; 0 for frames without depth."""
+    phase = Phase.LOSS
 
     def __init__(self, config: DepthLossConfig):
         super().__init__()

@@ -17,6 +17,7 @@ from torch import Tensor
 from surgsplat.image.ssim import ssim
 from surgsplat.losses.occlusion import OcclusionImportance
 from surgsplat.model.component import Component, ComponentConfig, RenderContext, SetupContext
+from surgsplat.model.phases import Phase
 
 
 def _check(pred: Tensor, gt: Tensor, mask: Tensor) -> None:
@@ -97,6 +98,7 @@ class PhotometricConfig(ComponentConfig, kind="photometric_loss"):
 class PhotometricLoss(Component):
     """Loss term "photometric": `photometric_loss` of the rendered colour over tissue pixels,
     the L1 term weighted by the occlusion importance map when occlusion_gamma > 0."""
+    phase = Phase.LOSS
 
     def __init__(self, config: PhotometricConfig):
         super().__init__()

@@ -25,7 +25,10 @@ class MethodConfig:
     name: str
     """Preset this configuration started from."""
     components: dict[str, ComponentConfig] = field(default_factory=dict)
-    """The method's components by name, applied in this order (deformation first)."""
+    """The method's components by name, in any order: the model applies them in the order of
+    their phases (`model.phases`: anchor, deformation, tool, exposure, illumination, opacity,
+    surface, shading, loss). They are built in this order (which draws its random initial
+    weights first), and those of a phase several may share keep it among themselves."""
     losses: dict[str, LossWeight] = field(default_factory=dict)
     """Weight of every loss term the components declare, by term name."""
     gaussians: GaussianConfig = field(default_factory=GaussianConfig)

@@ -4,11 +4,23 @@ planar Gaussians, ...) is a `Component`, configured by a typed `ComponentConfig`
 The Trainer, checkpoints, run loading and the densification strategy handle every component the
 same way and never name one. A component declares:
 
+- its phase (`phase`, see `model.phases`: anchor, deformation, tool, exposure, illumination,
+  opacity, surface, shading, loss), from which the model orders the components: the order of a
+  method's config does not matter;
 - its network parameters as optimiser groups with a learning-rate schedule (`param_groups`);
 - its per-Gaussian attributes (`initial_attributes`, `attribute_lrs`): they live with the Gaussians
   in `GaussianModel.params`, so densification, pruning and checkpoints carry them generically;
+- its non-learnable per-Gaussian state (`initial_buffers`, e.g. the face a Gaussian is anchored
+  to): buffers in `GaussianModel.buffer_dict`, which densification copies and prunes with the
+  rows and checkpoints save, in no optimiser group;
 - its state for checkpoints: `nn.Module.state_dict()` (parameters and buffers);
-- how it changes the Gaussians at a frame (`transform`: deformation, opacity, colour);
+- how it changes the Gaussians at a frame (`transform`: deformation, opacity, colour), a pure
+  function of its state and the Gaussians: it changes no parameter, buffer or attribute, so
+  asking twice gives the same Gaussians. State changes happen in `setup`, in `before_render`
+  (once per render, before any transform: e.g. extracting a first mesh, or encoding a training
+  frame once for the step's transform and losses) and in `after_step`;
+- what the rasteriser receives of the Gaussians (`rasterised_state`: the same values, with
+  gradients it may filter);
 - the per-Gaussian channels it adds to a render (`render_channels`) and what it derives from the
   rendered maps (`finish_render`: e.g. an unbiased depth, an exposure gain); the channels to
   show, each with its descriptor (`channel_descriptors`, see `model.channels`), which videos,
@@ -37,7 +49,8 @@ same way and never name one. A component declares:
   resets act on the opacity that is rendered; and a weight on each Gaussian's screen-space
   gradient of a step (`densify_weights`, e.g. to keep occluded tissue growing).
 
-Every hook has a neutral default, so a component implements only what it contributes.
+Every hook has a neutral default, so a component implements only what it contributes; only its
+phase has none: every component class declares it.
 A config subclass registers itself under its `kind` (the key saved in config.json), so a run's
 config can be rebuilt from the file alone, including components defined outside surgsplat.
 """
@@ -51,6 +64,7 @@ from typing import TYPE_CHECKING, ClassVar
 from torch import Tensor, nn
 
 from surgsplat.errors import SurgsplatError
+from surgsplat.model.phases import Phase
 
 if TYPE_CHECKING:
     from surgsplat.data.scene import Camera, Frame
@@ -173,6 +187,9 @@ class ComponentConfig:
 class Component(nn.Module):
     """One piece of a method; see the module docstring. Hooks default to contributing nothing."""
 
+    phase: ClassVar[Phase | str | None] = None
+    """Where the component acts: a `model.phases.Phase` or its value; every component class
+    declares it."""
     separates_tool: ClassVar[bool] = False
     """True when `transform` leaves the tool out of renders asked with `when.tissue_only`."""
 
@@ -181,6 +198,12 @@ class Component(nn.Module):
         model is built (trained or loaded), before any other hook but `setup` and the initial
         points and attributes. Keep what is needed as a plain reference (not as a submodule:
         each component's state is saved once, under its own name)."""
+
+    def before_render(self, gaussians: GaussianModel, when: FrameTime) -> None:
+        """Called by `SplatModel.render` once per render, in the render's gradient mode, before
+        any component's `transform`: bring the component's state up to date for `when` (e.g.
+        extract a first mesh, anchor new Gaussians, or compute once what the render's
+        transform and the step's losses share). The transforms that follow read that state."""
 
     def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
         """Called without gradients after every training step (`iteration`, from 1), once the
@@ -204,13 +227,27 @@ class Component(nn.Module):
         """Adam learning rate of each per-Gaussian attribute this component owns, by name."""
         return {}
 
+    def initial_buffers(self, context: SetupContext) -> dict[str, Tensor]:
+        """Non-learnable per-Gaussian tensors, name -> [M, ...] for the M initial points
+        (`GaussianModel.buffer_dict`): a clone or split child copies its parent's rows, pruning
+        drops them, checkpoints save them; no optimiser changes them."""
+        return {}
+
     def param_groups(self) -> list[ParamGroup]:
         """Optimiser groups of the component's own (non per-Gaussian) parameters."""
         return []
 
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
-        """The Gaussians at `when` after this component (deform, change opacity or colour)."""
+        """The Gaussians at `when` after this component (deform, change opacity or colour);
+        pure: it changes no parameter, buffer or attribute (see `before_render`)."""
+        return state
+
+    def rasterised_state(self, state: GaussianState) -> GaussianState:
+        """The Gaussians as the rasteriser receives them: the same values as `state`, whose
+        gradients the component may filter (e.g. the tool field drops the render's gradients
+        to tissue hidden behind the tool). Losses computed on the state itself, not through
+        the render, keep their gradients."""
         return state
 
     def render_channels(self, state: GaussianState, gaussians: GaussianModel, camera: Camera,

@@ -18,17 +18,19 @@ from surgsplat.model.component import (Component, Diagnostics, FrameTime, ParamG
                                        RenderContext)
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.membership import tissue_members, tool_members
+from surgsplat.model.phases import order_by_phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.render import RenderOutput, render
 
 
 class SplatModel(nn.Module):
-    """Canonical Gaussians and named components, applied in order."""
+    """Canonical Gaussians and named components, applied in the order of their phases
+    (`model.phases`; SurgsplatError when no such order exists)."""
 
     def __init__(self, gaussians: GaussianModel, components: dict[str, Component]):
         super().__init__()
         self.gaussians = gaussians
-        self.components = nn.ModuleDict(components)
+        self.components = nn.ModuleDict(order_by_phase(components))
         for component in self.components.values():
             component.bind(self.components)
 
@@ -51,8 +53,14 @@ class SplatModel(nn.Module):
                 return placed
         return self.gaussians.params["means"]
 
+    def before_render(self, when: FrameTime) -> None:
+        """Every component's `before_render` for a render at `when` (`render` calls it)."""
+        for component in self.components.values():
+            component.before_render(self.gaussians, when)
+
     def state_at(self, when: FrameTime) -> GaussianState:
-        """The Gaussians at `when`: the canonical state through every component's transform."""
+        """The Gaussians at `when`: the canonical state through every component's transform
+        (pure: asking twice changes nothing)."""
         state = self.canonical_state()
         for component in self.components.values():
             state = component.transform(state, self.gaussians, when)
@@ -61,7 +69,9 @@ class SplatModel(nn.Module):
     def render(self, camera: Camera, when: FrameTime, background: Tensor | None = None,
                absgrad: Tensor | None = None) -> tuple[RenderOutput, GaussianState]:
         """The view of `camera` at `when`, with every component's channels and derived maps,
-        and the Gaussians that were rendered."""
+        and the Gaussians that were rendered (after every component's `before_render`; the
+        rasteriser receives them through every component's `rasterised_state`)."""
+        self.before_render(when)
         state = self.state_at(when)
         channels: dict[str, Tensor] = {}
         for name, component in self.components.items():
@@ -70,9 +80,12 @@ class SplatModel(nn.Module):
                     raise SurgsplatError(f"component {name!r} renders channel {key!r}, which "
                                          "another component already renders")
                 channels[key] = value
-        output = render(state.means, state.scales, state.quats, state.opacities, state.sh,
+        drawn = state
+        for component in self.components.values():
+            drawn = component.rasterised_state(drawn)
+        output = render(drawn.means, drawn.scales, drawn.quats, drawn.opacities, drawn.sh,
                         camera.K, camera.width, camera.height,
-                        world_to_camera=camera.world_to_camera, sh_degree=state.sh_degree,
+                        world_to_camera=camera.world_to_camera, sh_degree=drawn.sh_degree,
                         extras=channels, background=background, absgrad=absgrad)
         for component in self.components.values():
             component.finish_render(output, camera, when)

@@ -17,6 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, ParamGroup, SceneInfo
+from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.sh import SH_C0
 
@@ -40,6 +41,7 @@ class ExposureConfig(ComponentConfig, kind="exposure"):
 
 class ExposureCurve(Component):
     """Per-channel log-gain g(t), linear between `knots` evenly spaced knots; starts at 0."""
+    phase = Phase.EXPOSURE
 
     def __init__(self, config: ExposureConfig):
         super().__init__()

@@ -1,13 +1,16 @@
-"""Canonical Gaussians: every per-Gaussian tensor in one ParameterDict.
+"""Canonical Gaussians: every per-Gaussian tensor in two dicts of [N, ...] rows.
 
-Keeping all per-Gaussian state (geometry, appearance and any per-Gaussian attributes of a
-deformation field) in one dict of [N, ...] parameters is what lets the densification strategy
-clone, split and prune Gaussians with one mechanism.
+The learnable ones (geometry, appearance and the components' per-Gaussian attributes, e.g. a
+deformation field's) are the parameters of `params`; the non-learnable ones (the components'
+per-Gaussian buffers, e.g. the face a Gaussian is anchored to) are the buffers of `buffer_dict`.
+Keeping them all as rows of one model is what lets the densification strategy clone, split and
+prune Gaussians with one mechanism.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import ItemsView, Iterator, Mapping
 from dataclasses import dataclass, field
 
 import torch
@@ -59,26 +62,61 @@ def knn_mean_distance(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
     return torch.from_numpy(distances[:, 1:].mean(axis=1)).to(points)
 
 
+class BufferDict(nn.Module):
+    """Named tensors held as buffers (in `state_dict`, moved by `.to`), read and replaced like
+    the values of a dict."""
+
+    def __init__(self, tensors: Mapping[str, Tensor]):
+        super().__init__()
+        for name, tensor in tensors.items():
+            self.register_buffer(name, tensor)
+
+    def __getitem__(self, name: str) -> Tensor:
+        return self._buffers[name]
+
+    def __setitem__(self, name: str, tensor: Tensor) -> None:
+        self.register_buffer(name, tensor)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._buffers
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._buffers)
+
+    def __len__(self) -> int:
+        return len(self._buffers)
+
+    def items(self) -> ItemsView[str, Tensor]:
+        return self._buffers.items()
+
+
 class GaussianModel(nn.Module):
     """N canonical Gaussians.
 
     params holds, each [N, ...]: means [N,3] (scene units), log_scales [N,3], quats [N,4]
     (w,x,y,z, unnormalised), opacity_logits [N], sh_dc [N,3], sh_rest [N,K-1,3] with
-    K = (sh_degree+1)^2, plus any per-Gaussian attributes of the deformation field.
+    K = (sh_degree+1)^2, plus the components' learnable per-Gaussian attributes; buffer_dict
+    holds the components' non-learnable per-Gaussian tensors, each [N, ...].
     """
 
-    def __init__(self, params: dict[str, Tensor], sh_degree: int):
+    def __init__(self, params: dict[str, Tensor], sh_degree: int,
+                 buffers: dict[str, Tensor] | None = None):
         super().__init__()
-        sizes = {name: value.shape[0] for name, value in params.items()}
-        if len(set(sizes.values())) != 1:
-            raise ValueError(f"per-Gaussian tensors disagree on N: {sizes}")
+        buffers = buffers or {}
+        sizes = {name: value.shape[0] for name, value in {**params, **buffers}.items()}
+        if len(set(sizes.values())) != 1 or len(sizes) != len(params) + len(buffers):
+            raise ValueError(f"per-Gaussian tensors disagree on N or share a name: {sizes}, "
+                             f"buffers {sorted(buffers)}")
         self.sh_degree = sh_degree
         self.params = nn.ParameterDict({k: nn.Parameter(v) for k, v in params.items()})
+        self.buffer_dict = BufferDict(buffers)
 
     @classmethod
     def from_points(cls, points: Tensor, colors: Tensor, config: GaussianConfig,
-                    attributes: dict[str, Tensor] | None = None) -> "GaussianModel":
-        """points [N,3], colors [N,3] in [0,1]; attributes: extra per-Gaussian tensors."""
+                    attributes: dict[str, Tensor] | None = None,
+                    buffers: dict[str, Tensor] | None = None) -> "GaussianModel":
+        """points [N,3], colors [N,3] in [0,1]; attributes: extra learnable per-Gaussian
+        tensors [N, ...]; buffers: non-learnable per-Gaussian tensors [N, ...]."""
         n = points.shape[0]
         scale = knn_mean_distance(points).clamp_min(1e-4) * config.init_scale_factor
         quats = torch.zeros(n, 4)
@@ -94,11 +132,15 @@ class GaussianModel(nn.Module):
             "sh_rest": torch.zeros(n, num_sh_coeffs(config.sh_degree) - 1, 3),
         }
         params.update(attributes or {})
-        return cls(params, config.sh_degree)
+        return cls(params, config.sh_degree, buffers)
 
     @property
     def num_gaussians(self) -> int:
         return self.params["means"].shape[0]
+
+    def per_gaussian(self) -> dict[str, Tensor]:
+        """Every per-Gaussian tensor [N, ...] by name: the parameters, then the buffers."""
+        return {**dict(self.params.items()), **dict(self.buffer_dict.items())}
 
     @property
     def attributes(self) -> dict[str, Tensor]:

@@ -27,10 +27,13 @@
   colour (channel sums) renders the gain G_t, `output.extras["gain"]` [H, W, 1], the
   illumination the modulation carries.
 - Embedding cache and Eq. 5: the UNet runs only in training steps (module in training mode and
-  gradients on) on training frames; each run stores its e_t in the buffer `embeddings` [F, E]
-  (and, in Stage 2, its L_t in `illumination_maps` [F, h, w]). Switching the module to
-  evaluation mode (`eval()`, as a loaded run is) recomputes both caches for every training frame
-  with the final UNet, once, so that no entry is left from an earlier state of the network.
+  gradients on) on training frames: `before_render` encodes the step's frame once (a
+  `StepIllumination`, whose features and e_t the step's transform and losses share) and stores
+  its e_t in the buffer `embeddings` [F, E]; in Stage 2 the step's losses decode its L_t, which
+  `after_step` stores in `illumination_maps` [F, h, w]; `transform` only reads them. Switching
+  the module to evaluation mode (`eval()`, as a loaded run is) recomputes both caches for every
+  training frame with the final UNet, once, so that no entry is left from an earlier state of
+  the network.
   Every other render (evaluation, videos, test frames) takes e_t and L_t linearly interpolated
   between the two nearest training times (Eq. 5), with no UNet inference; such renders also
   carry the upsampled L_t as `output.extras["illumination"]` [H, W, 1]. A frame whose map Stage 2
@@ -68,6 +71,7 @@ from surgsplat.model.channels import (ILLUMINATION, REFLECTANCE, ChannelDescript
                                       Colormap)
 from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
                                        RenderContext, SceneInfo, SetupContext)
+from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.sh import SH_C0, sh_colour
 
@@ -189,8 +193,20 @@ class FusionMLP(nn.Module):
         return self.last(self.hidden(x))
 
 
+@dataclass
+class StepIllumination:
+    """LumiState's work on the frame of a training step, kept from `before_render` to
+    `after_step`."""
+
+    index: int  # the frame
+    features: list[Tensor]  # the UNet encoder's feature maps of its brightness (step's graph)
+    embedding: Tensor  # e_t [E] (step's graph)
+    low: Tensor | None = None  # L_t [h, w] as the step's Stage-2 losses decoded it (detached)
+
+
 class LumiState(Component):
     """See the module docstring."""
+    phase = Phase.ILLUMINATION
 
     def __init__(self, config: LumiStateConfig):
         super().__init__()
@@ -215,7 +231,7 @@ class LumiState(Component):
         self.register_buffer("centre", torch.zeros(3))  # initial points' centroid
         self.register_buffer("extent", torch.ones(()))  # their largest distance from it
         self.relight_source: str | int | None = None
-        self._encoding: tuple[int, list[Tensor]] | None = None  # this step's UNet features
+        self._step: StepIllumination | None = None  # from before_render to after_step
 
     # ---- setup ----
     def setup(self, context: SetupContext) -> None:
@@ -269,11 +285,20 @@ class LumiState(Component):
     def embedding(self, when: FrameTime) -> Tensor:
         """e_t [E] of `when`: the UNet's in a training step, else cached / interpolated."""
         if self.is_live(when):
-            features, embedding = self.unet.encode(self.brightness[when.index][None])
-            self._encoding = (when.index, features)
-            self.embeddings[when.index] = embedding[0].detach()
-            return embedding[0]
+            return self.step_of(when.index).embedding
         return self.cached_state(self.embeddings, when)
+
+    def encode(self, index: int) -> StepIllumination:
+        """The UNet's encoding of training frame `index`, differentiable in the UNet."""
+        features, embedding = self.unet.encode(self.brightness[index][None])
+        return StepIllumination(index, features, embedding[0])
+
+    def step_of(self, index: int) -> StepIllumination:
+        """The encoding of training frame `index` in this step: the one `before_render` kept,
+        or else a new one (not kept)."""
+        if self._step is not None and self._step.index == index:
+            return self._step
+        return self.encode(index)
 
     def cached_state(self, table: Tensor, when: FrameTime) -> Tensor:
         """table's entry [...] for `when` under the relight source: Eq. 5's interpolation
@@ -303,6 +328,19 @@ class LumiState(Component):
             self.relight_source = previous
 
     # ---- the component contract ----
+    def before_render(self, gaussians, when: FrameTime) -> None:
+        """In a training step (`is_live`), encode its frame once for the step and cache e_t."""
+        if self.is_live(when):
+            self._step = self.encode(when.index)
+            self.embeddings[when.index] = self._step.embedding.detach()
+
+    def after_step(self, gaussians, iteration: int) -> None:
+        """Cache the L_t that the step's losses decoded (Stage 2); forget the step."""
+        step, self._step = self._step, None
+        if step is not None and step.low is not None:
+            self.illumination_maps[step.index] = step.low
+            self.mapped[step.index] = True
+
     def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
         """Eq. 4 on the coefficients up to `sh_degree` (see the module docstring)."""
         embedding = self.embedding(when)
@@ -352,17 +390,12 @@ class LumiState(Component):
         return ("retinex", "bright_channel", "illumination_transfer")
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
-        """Stage 2's terms from this step's L_t (the decoder on the step's UNet features)."""
-        frame, index = context.frame, context.when.index
-        if self._encoding is not None and self._encoding[0] == index:
-            features = self._encoding[1]
-        else:
-            features = self.unet.encode(self.brightness[index][None])[0]
-        self._encoding = None
-        low = self.unet.decode(features)[0]  # [h, w]
-        if self.known[index]:
-            self.illumination_maps[index] = low.detach()
-            self.mapped[index] = True
+        """Stage 2's terms from this step's L_t (the decoder on the step's UNet features), which
+        the step keeps for `after_step` to cache."""
+        frame = context.frame
+        step = self.step_of(context.when.index)
+        low = self.unet.decode(step.features)[0]  # [h, w]
+        step.low = low.detach()
         illumination = self.upsample(low, frame.image.shape[0], frame.image.shape[1])
         terms = {}
         if "retinex" in active:

@@ -3,10 +3,11 @@
 
 The mesh is the zero level set of the method's signed distance field (the first component's
 `signed_distance_field`, `model.capabilities`; `fields.level_set.marching_cubes`),
-extracted at the first training step and again after every `reanchor_every` steps. Each Gaussian
-is mapped to a face k (per-Gaussian attribute `anchor_face`, carried by densification like any
-attribute: a clone or split child keeps its parent's face): the nearest face (among the
-`candidate_faces` faces of nearest centroid) to its canonical centre when it is anchored.
+extracted before the first render (`before_render`) and again after every `reanchor_every`
+training steps (`after_step`). Each Gaussian is mapped to a face k (per-Gaussian buffer
+`anchor_face`, carried by densification with the rows: a clone or split child keeps its parent's
+face): the nearest face (among the `candidate_faces` faces of nearest centroid) to its canonical
+centre when it is anchored. Until the first mesh exists the Gaussians are left as they are.
 
 Face frame (the supplement's): e0 = (v1 - v0) / |.|, e1 = (v2 - v1) / |.|, n = e0 x e1 / |.|;
 x_k = e0, y_k = n x e0, z_k = n, with origin v0. A Gaussian's learnable canonical mean, scales
@@ -25,14 +26,14 @@ the forward pass uses the clipped value, the backward pass the identity (sg(clip
 so the photometric gradient keeps moving the parameters, whose drift off the surface the SDF's
 projection loss pulls back.
 
-How the Gaussians follow the deforming surface: this component comes first in the method, so it
-turns the canonical Gaussians into anchored canonical Gaussians; the deformation field then moves
-the anchored centres (evaluated there, `fields.deformation`), so over time each Gaussian moves with
-the tissue around its face. The mesh itself is canonical; the mesh export carries its vertices to
-a frame by the displacement of the nearby Gaussians from their anchored canonical centres
-(`canonical_means`; `export.mesh`), i.e. by the same field. The method's SDF evaluates its bell
-and its losses at the raw means (see `fields.sdf`): its projection loss pulls them back onto the
-zero level, which keeps the clip small.
+How the Gaussians follow the deforming surface: this component's phase (anchor) comes first, so
+it turns the canonical Gaussians into anchored canonical Gaussians; the deformation field then
+moves the anchored centres (evaluated there, `fields.deformation`), so over time each Gaussian
+moves with the tissue around its face. The mesh itself is canonical; the mesh export carries its
+vertices to a frame by the displacement of the nearby Gaussians from their anchored canonical
+centres (`canonical_means`; `export.mesh`), i.e. by the same field. The method's SDF evaluates
+its bell and its losses at the raw means (see `fields.sdf`): its projection loss pulls them back
+onto the zero level, which keeps the clip small.
 
 Gaussians that a component of the method marks as tool (`model.membership`) are left as they are.
 """
@@ -55,13 +56,14 @@ from surgsplat.model.capabilities import SignedDistanceField
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, SetupContext
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.membership import tissue_members
+from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
 
 ANCHOR_KEY = "anchor_face"
-"""Per-Gaussian attribute [N]: index of the face the Gaussian is anchored to (a float holding an
-integer; -1 = not anchored yet, anchored at the next render)."""
+"""Per-Gaussian buffer [N] int64: index of the face the Gaussian is anchored to; -1 = not
+anchored yet (the next render's `before_render` anchors it)."""
 
 
 @dataclass
@@ -178,6 +180,7 @@ def nearest_faces(points: Tensor, vertices: Tensor, faces: Tensor, candidates: i
 class MeshAnchor(Component):
     """See the module docstring. Buffers: vertices [V, 3] and faces [F, 3] of the canonical mesh
     the Gaussians are anchored to, cell (the marching-cubes cell, scene units)."""
+    phase = Phase.ANCHOR
 
     def __init__(self, config: MeshAnchorConfig):
         super().__init__()
@@ -227,7 +230,7 @@ class MeshAnchor(Component):
     @torch.no_grad()
     def anchor(self, gaussians: GaussianModel, rows: Tensor | None = None) -> None:
         """Map the Gaussians `rows` (default all) to their nearest faces of the current mesh."""
-        anchors = gaussians.params[ANCHOR_KEY]
+        anchors = gaussians.buffer_dict[ANCHOR_KEY]
         rows = torch.arange(anchors.shape[0]) if rows is None else rows
         if rows.numel():
             means = gaussians.params["means"][rows]
@@ -236,24 +239,16 @@ class MeshAnchor(Component):
 
     def unanchored(self, gaussians: GaussianModel) -> Tensor:
         """Indices of the Gaussians without a valid face of the current mesh."""
-        anchors = gaussians.params[ANCHOR_KEY].detach()
+        anchors = gaussians.buffer_dict[ANCHOR_KEY]
         return ((anchors < 0) | (anchors >= self.faces.shape[0])).nonzero()[:, 0]
 
     def face_corners(self, gaussians: GaussianModel) -> Tensor:
         """[N, 3, 3] the corners of every Gaussian's face."""
-        return self.vertices[self.faces[gaussians.params[ANCHOR_KEY].detach().long()]]
+        return self.vertices[self.faces[gaussians.buffer_dict[ANCHOR_KEY].long()]]
 
     def face_radius(self, corners: Tensor) -> Tensor:
         """[N] r_k of the clips: the inradius, at least min_face_radius cells."""
         return inradius(corners).clamp_min(self.config.min_face_radius * float(self.cell))
-
-    def _ensure_anchored(self, gaussians: GaussianModel) -> None:
-        """Extract the mesh if there is none yet and anchor the Gaussians without a face."""
-        if self.faces.shape[0] == 0:
-            self.extract()
-        missing = self.unanchored(gaussians)
-        if missing.numel():
-            self.anchor(gaussians, missing)
 
     def _clipped_means(self, means: Tensor, corners: Tensor, radius: Tensor) -> Tensor:
         """Centres [N, 3] clipped into their faces corners [N, 3, 3] and normal bands of
@@ -262,12 +257,13 @@ class MeshAnchor(Component):
                              self.config.offset_band * radius)
         return from_face_local(local, corners)
 
-    def canonical_means(self, gaussians: GaussianModel) -> Tensor:
+    def canonical_means(self, gaussians: GaussianModel) -> Tensor | None:
         """[N, 3] the anchored canonical centres (tool Gaussians' as they are), straight-through
         to params["means"]: where this component puts the canonical Gaussians before any
         deformation. The mesh export measures the deformation's displacement from there (not
-        from the raw means, whose clip offset is no motion)."""
-        self._ensure_anchored(gaussians)
+        from the raw means, whose clip offset is no motion). None before the first mesh."""
+        if self.faces.shape[0] == 0:
+            return None
         means = gaussians.params["means"]
         corners = self.face_corners(gaussians)
         clipped = self._clipped_means(means, corners, self.face_radius(corners))
@@ -277,11 +273,17 @@ class MeshAnchor(Component):
         return straight_through(clipped, means)
 
     # ---- the component contract ----
-    def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
-        return {ANCHOR_KEY: torch.full((context.points.shape[0],), -1.0)}
+    def initial_buffers(self, context: SetupContext) -> dict[str, Tensor]:
+        return {ANCHOR_KEY: torch.full((context.points.shape[0],), -1, dtype=torch.long)}
 
-    def attribute_lrs(self) -> dict[str, float]:
-        return {ANCHOR_KEY: 0.0}
+    def before_render(self, gaussians: GaussianModel, when: FrameTime) -> None:
+        """Extract the first mesh when there is none yet, and anchor the Gaussians without a
+        face of the current mesh (the initial ones)."""
+        if self.faces.shape[0] == 0:
+            self.extract()
+        missing = self.unanchored(gaussians)
+        if missing.numel():
+            self.anchor(gaussians, missing)
 
     def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
         if iteration % self.config.reanchor_every == 0:
@@ -291,8 +293,9 @@ class MeshAnchor(Component):
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
         """The anchored canonical Gaussians (see the module docstring); tool Gaussians as they
-        are."""
-        self._ensure_anchored(gaussians)
+        are, and every Gaussian before the first mesh."""
+        if self.faces.shape[0] == 0:
+            return state
         config = self.config
         corners = self.face_corners(gaussians)  # [N, 3, 3]
         radius = self.face_radius(corners)  # [N]

@@ -29,6 +29,7 @@ from torch import Tensor
 from surgsplat.image.depth import depth_gradient_magnitude
 from surgsplat.image.pinhole import depth_normals
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, RenderContext
+from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.planar import planar_normals_and_distances, unbiased_plane_depth
 
@@ -46,6 +47,7 @@ class PlanarConfig(ComponentConfig, kind="planar"):
 
 class PlanarGaussians(Component):
     """See the module docstring."""
+    phase = Phase.SURFACE
 
     def __init__(self, config: PlanarConfig):
         super().__init__()

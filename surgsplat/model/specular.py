@@ -28,6 +28,7 @@ from torch import Tensor
 
 from surgsplat.image.blur import gaussian_blur
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, SetupContext
+from surgsplat.model.phases import Phase
 from surgsplat.render.render import MIN_ALPHA_FOR_DEPTH
 
 ALBEDO_KEY = "specular_albedo_logit"
@@ -56,6 +57,7 @@ class SpecularConfig(ComponentConfig, kind="specular"):
 
 class SpecularLobe(Component):
     """See the module docstring."""
+    phase = Phase.SHADING
 
     def __init__(self, config: SpecularConfig):
         super().__init__()

@@ -49,6 +49,7 @@ from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, 
                                        InitialPoints, ParamGroup, RenderContext, SceneInfo,
                                        SetupContext)
 from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.phases import Phase
 from surgsplat.model.physics import PHANTOM_EXTENT_MM, arap_strain, neighbour_graph, tool_proxy
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
@@ -109,6 +110,7 @@ class ToolField(Component):
     """See the module docstring. rotations, translations: [F, 3] per frame; known [F] bool:
     frames with a registered pose (training frames); seen [F] bool: frames that show the tool."""
 
+    phase = Phase.TOOL
     separates_tool = True
 
     def __init__(self, config: ToolFieldConfig):
@@ -122,7 +124,7 @@ class ToolField(Component):
         self.register_buffer("seen", torch.zeros(frames, dtype=torch.bool))
         self.register_buffer("last_tissue_image", torch.zeros(0, 0, 3), persistent=False)
         self._reference: tuple[Tensor, Tensor] | None = None  # canonical tool (means, colours)
-        self._gate = GradientGate()  # of the latest render: colours, opacities, tool channel
+        self._gate = GradientGate()  # of the latest render: what it rasterised, tool channel
         self._occlusion: tuple | None = None  # (render, occluded [N], pixels [N, 2]) of a step
 
     # ---- set-up ----
@@ -250,13 +252,23 @@ class ToolField(Component):
         nearest = min(sides, key=lambda side: (abs(side - index), bool(self.seen[side])))
         return self.rotations[nearest], self.translations[nearest] * self.unit
 
+    def before_render(self, gaussians: GaussianModel, when: FrameTime) -> None:
+        """A new `GradientGate` for the render that follows, open until `losses` closes it."""
+        self._gate = GradientGate()
+
+    def rasterised_state(self, state: GaussianState) -> GaussianState:
+        """Every Gaussian's position, shape, colour and opacity pass to the rasteriser through
+        this render's `GradientGate`, which `losses` closes for the tissue hidden behind
+        rendered tool. The state itself is not gated: the biomechanical energies reach the
+        hidden tissue's positions."""
+        gate = self._gate
+        return state.replace(means=gate(state.means), scales=gate(state.scales),
+                             quats=gate(state.quats), sh=gate(state.sh),
+                             opacities=gate(state.opacities))
+
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
-        """Tool Gaussians moved rigidly to `when` (dropped with `when.tissue_only`). The colours
-        and opacities of every Gaussian, and the semantic channel, pass through this render's
-        `GradientGate`, which `losses` closes for the tissue hidden behind rendered tool."""
-        self._gate = GradientGate()
-        state = state.replace(sh=self._gate(state.sh), opacities=self._gate(state.opacities))
+        """Tool Gaussians moved rigidly to `when` (dropped with `when.tissue_only`)."""
         tool = self.tool_members(gaussians)  # [N]
         if not tool.any():
             return state
@@ -285,16 +297,21 @@ class ToolField(Component):
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         """"mask": BCE of the rendered tool probability against the tool mask over the field
-        of view. This step's losses do not reach the semantic logit, colour or opacity of a
-        tissue Gaussian hidden behind rendered tool (`_occluded`; the render's `GradientGate`):
-        - per-Gaussian Adam moves a logit by about the learning rate per step whatever the
+        of view. No loss of this step reaches, through the render, a tissue Gaussian hidden
+        behind rendered tool (`_occluded`): the render's `GradientGate` drops the gradients of
+        its semantic logit and of everything the rasteriser received of it.
+        - Per-Gaussian Adam moves a logit by about the learning rate per step whatever the
           gradient's size, so the faint blend weight of hidden tissue under a tool pixel would
-          otherwise flip it to tool within ~2 init_logit / semantic_lr visits;
-        - through the tool's residual transmittance (~8% at tool pixels on the full phantom) the
-          photometric loss would paint the hidden tissue in the tool's colours: at 3000
-          iterations the tool-free render showed a dark tool-shaped smear (psnr_occluded 12.8
-          against 25.3 dB at 1000).
-        Its position still moves: the biomechanical energies carry the visible motion to it."""
+          otherwise flip it to tool within ~2 init_logit / semantic_lr visits.
+        - Through the tool's residual transmittance (~8% at tool pixels on the full phantom)
+          the photometric loss would paint the hidden tissue in the tool's colours (at 3000
+          iterations the tool-free render showed a dark tool-shaped smear: psnr_occluded 12.8
+          against 25.3 dB at 1000), and move it out from behind the tool and shrink it: with
+          colour and opacity gated but not position and shape, the tool-free render's hole
+          (alpha < 0.5) grew from 1% of test frame 33's tool pixels at 1250 iterations to 47%
+          at 3000 (psnr_occluded 13.6 dB); with everything gated, 3% (full phantom, seed 0).
+        Its position still moves: the biomechanical energies act on the state, not through the
+        render, and carry the visible motion to it."""
         frame = context.frame
         with torch.no_grad():
             tool = self.tool_members(context.gaussians)

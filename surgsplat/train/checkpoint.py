@@ -10,13 +10,15 @@ from pathlib import Path
 from typing import BinaryIO
 
 import torch
+from torch import Tensor
 
 from surgsplat.atomic import write_atomic
 from surgsplat.errors import DataError
 from surgsplat.methods.config import MethodConfig
 from surgsplat.model.component import Component
 from surgsplat.model.dynamic import SplatModel
-from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.gaussians import GEOMETRY_KEYS, GaussianModel
+from surgsplat.model.phases import order_by_phase
 
 
 def previous_path(path: Path) -> Path:
@@ -97,15 +99,19 @@ def load_checkpoint(path: Path) -> dict:
 
 
 def build_components(config: MethodConfig) -> dict[str, Component]:
-    """A fresh component of each of the method's component configs, by name."""
-    return {name: component.build() for name, component in config.components.items()}
+    """A fresh component of each of the method's component configs, by name, built in the
+    config's order and returned in the order of their phases (`model.phases`)."""
+    return order_by_phase({name: component.build()
+                           for name, component in config.components.items()})
 
 
 def model_state(config: MethodConfig, model: SplatModel) -> dict:
-    """The checkpoint entries that hold a model: its Gaussians and each component's state."""
+    """The checkpoint entries that hold a model: its Gaussians (per-Gaussian parameters and
+    buffers) and each component's state."""
     return {
         "method": config.name,
         "gaussians": {name: value.detach() for name, value in model.gaussians.params.items()},
+        "gaussian_buffers": dict(model.gaussians.buffer_dict.items()),
         "sh_degree": model.gaussians.sh_degree,
         "components": {name: component.state_dict()
                        for name, component in model.components.items()},
@@ -129,5 +135,37 @@ def model_from_state(config: MethodConfig, state: dict, path: Path) -> SplatMode
         except RuntimeError as err:
             raise DataError(path, f"component {name!r} does not match the run's config "
                                   f"({str(err).splitlines()[0]})") from err
-    gaussians = GaussianModel(state["gaussians"], int(state["sh_degree"]))
+    params, buffers = saved_per_gaussian(state, components)
+    gaussians = GaussianModel(params, int(state["sh_degree"]), buffers)
     return SplatModel(gaussians, components)
+
+
+def saved_per_gaussian(state: dict, components: dict[str, Component]
+                       ) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """The per-Gaussian parameters and buffers a checkpoint `state` holds. A saved parameter
+    that neither the Gaussians nor a component learns is a buffer: checkpoints written before
+    per-Gaussian buffers kept non-learnable state (mesh_anchor's anchor faces) as parameters
+    of learning rate 0."""
+    learned = set(GEOMETRY_KEYS).union(*(component.attribute_lrs()
+                                         for component in components.values()))
+    params = {name: value for name, value in state["gaussians"].items() if name in learned}
+    buffers = {name: value for name, value in state["gaussians"].items() if name not in learned}
+    return params, {**buffers, **state.get("gaussian_buffers", {})}
+
+
+def optimizer_state_in_order(saved: dict, names: list[str], path: Path) -> dict:
+    """A saved optimiser state_dict with its groups in the order `names` (the optimiser's
+    groups, by name), for `Optimizer.load_state_dict`, which matches groups by position: a run
+    saved before components were ordered by phase may hold them in another order. Saved groups
+    not in `names` (a per-Gaussian tensor that has become a buffer) are left out with their
+    state; DataError naming `path` when one of `names` was not saved."""
+    groups = {group["name"]: group for group in saved["param_groups"]}
+    missing = [name for name in names if name not in groups]
+    if missing:
+        raise DataError(path, f"holds no optimiser state for {missing[0]!r}: it belongs to "
+                              "another version of the method")
+    ordered = [groups[name] for name in names]
+    kept = {index for group in ordered for index in group["params"]}
+    return {"state": {index: value for index, value in saved["state"].items()
+                      if index in kept},
+            "param_groups": ordered}

@@ -2,7 +2,8 @@
 
 Every per-Gaussian parameter lives in `GaussianModel.params` and has its own optimiser group
 named after it; these helpers replace such a parameter by a selected or extended version and
-carry the Adam moments along (zeros for new rows).
+carry the Adam moments along (zeros for new rows). The per-Gaussian buffers
+(`GaussianModel.buffer_dict`) are selected or extended the same way, without an optimiser.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ MOMENT_KEYS = ("exp_avg", "exp_avg_sq")
 
 def _replace(model: GaussianModel, optimizer: torch.optim.Optimizer,
              edit: Callable[[str, Tensor, bool], Tensor]) -> None:
-    """Apply `edit(name, tensor, is_moment)` to each per-Gaussian parameter and its moments."""
+    """Apply `edit(name, tensor, is_moment)` to each per-Gaussian parameter and its moments,
+    and to each per-Gaussian buffer."""
     for group in optimizer.param_groups:
         name = group["name"]
         if name not in model.params:
@@ -32,6 +34,8 @@ def _replace(model: GaussianModel, optimizer: torch.optim.Optimizer,
                                     for key, value in state.items()}
         group["params"][0] = new
         model.params[name] = new
+    for name, tensor in list(model.buffer_dict.items()):
+        model.buffer_dict[name] = edit(name, tensor, False)
 
 
 def keep_gaussians(model: GaussianModel, optimizer: torch.optim.Optimizer, keep: Tensor) -> None:
@@ -41,8 +45,9 @@ def keep_gaussians(model: GaussianModel, optimizer: torch.optim.Optimizer, keep:
 
 def append_gaussians(model: GaussianModel, optimizer: torch.optim.Optimizer,
                      new_rows: dict[str, Tensor]) -> None:
-    """Append Gaussians; new_rows holds an [M, ...] tensor for every per-Gaussian parameter."""
-    missing = set(model.params.keys()) - set(new_rows)
+    """Append Gaussians; new_rows holds an [M, ...] tensor for every per-Gaussian parameter
+    and buffer."""
+    missing = set(model.per_gaussian()) - set(new_rows)
     if missing:
         raise ValueError(f"new Gaussians lack values for {sorted(missing)}")
 

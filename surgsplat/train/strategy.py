@@ -96,7 +96,7 @@ class DensifyStrategy:
         split_idx = _strongest(split, mean_grad, max(room - clone_idx.numel(), 0) // 2)
         if clone_idx.numel():
             self._share_opacity(model, clone_idx, None if factor is None else factor[clone_idx])
-        rows = {name: value[clone_idx] for name, value in model.params.items()}
+        rows = {name: value[clone_idx] for name, value in model.per_gaussian().items()}
         split_rows = self._split_rows(model, split_idx)
         new_rows = {name: torch.cat([rows[name], split_rows[name]]) for name in rows}
         if new_rows["means"].shape[0] == 0:
@@ -121,12 +121,12 @@ class DensifyStrategy:
         logits[index] = torch.logit(shared.clamp(1e-6, 1.0 - 1e-6))
 
     def _split_rows(self, model: GaussianModel, index: Tensor) -> dict[str, Tensor]:
-        """Two children per parent of `index` [K], each parent's pair adjacent; placed as
-        DensifyConfig.split says."""
-        params = {name: value[index] for name, value in model.params.items()}
-        children = {name: value.repeat_interleave(2, dim=0) for name, value in params.items()}
-        scales = params["log_scales"].exp()  # [K, 3]
-        rotation = quaternion_to_matrix(params["quats"])  # [K, 3, 3], columns: the local axes
+        """Two children per parent of `index` [K], each parent's pair adjacent (every
+        per-Gaussian parameter and buffer); placed as DensifyConfig.split says."""
+        parents = {name: value[index] for name, value in model.per_gaussian().items()}
+        children = {name: value.repeat_interleave(2, dim=0) for name, value in parents.items()}
+        scales = parents["log_scales"].exp()  # [K, 3]
+        rotation = quaternion_to_matrix(parents["quats"])  # [K, 3, 3], columns: the local axes
         shrink = 1.0 / self.config.split_factor
         if self.config.split == "long_axis":
             axis = scales.argmax(dim=1)  # [K]

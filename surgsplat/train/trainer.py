@@ -27,12 +27,14 @@ from surgsplat.data.tool_masks import offset_tool_masks
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig, to_dict
 from surgsplat.methods.settings import LossWeight
-from surgsplat.model.component import FrameTime, ParamGroup, RenderContext, SceneInfo, SetupContext
+from surgsplat.model.component import (Component, FrameTime, ParamGroup, RenderContext,
+                                       SceneInfo, SetupContext)
 from surgsplat.model.dynamic import SplatModel
-from surgsplat.model.gaussians import GaussianModel
+from surgsplat.model.gaussians import GEOMETRY_KEYS, GaussianModel
 from surgsplat.model.init_points import initial_points
 from surgsplat.train.checkpoint import (build_components, load_latest_or_previous,
-                                        model_from_state, model_state, save_atomic)
+                                        model_from_state, model_state,
+                                        optimizer_state_in_order, save_atomic)
 from surgsplat.train.strategy import DensifyStrategy
 
 CONFIG_FILE = "config.json"
@@ -110,6 +112,25 @@ def add_component_points(context: SetupContext, colors: Tensor,
     return means, colors
 
 
+def declared_per_gaussian(context: SetupContext, components: dict[str, Component]
+                          ) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """Every component's initial per-Gaussian attributes and buffers, name -> [M, ...] each;
+    SurgsplatError when two components (or the Gaussians themselves) own a name."""
+    owners = {key: "the Gaussians" for key in GEOMETRY_KEYS}
+    attributes: dict[str, Tensor] = {}
+    buffers: dict[str, Tensor] = {}
+    for name, component in components.items():
+        for kind, found, declared in (("attribute", attributes, component.initial_attributes),
+                                      ("buffer", buffers, component.initial_buffers)):
+            for key, value in declared(context).items():
+                if key in owners:
+                    raise SurgsplatError(f"component {name!r} declares the per-Gaussian {kind} "
+                                         f"{key!r}, already owned by {owners[key]}")
+                owners[key] = f"component {name!r}"
+                found[key] = value
+    return attributes, buffers
+
+
 def read_log(path: Path) -> list[dict]:
     """The entries of a training log (RUN/train_log.jsonl), in order: every line that is a JSON
     object with an integer "iteration" greater than the previous entry's. Lines that are not
@@ -161,14 +182,8 @@ class Trainer:
         for component in components.values():
             component.setup(context)
         means, colors = add_component_points(context, points.colors, components.values())
-        attributes: dict[str, Tensor] = {}
-        for name, component in components.items():
-            for key, value in component.initial_attributes(context).items():
-                if key in attributes:
-                    raise SurgsplatError(f"component {name!r} declares the per-Gaussian "
-                                         f"attribute {key!r}, which another component owns")
-                attributes[key] = value
-        gaussians = GaussianModel.from_points(means, colors, self.config.gaussians, attributes)
+        gaussians = GaussianModel.from_points(means, colors, self.config.gaussians,
+                                              *declared_per_gaussian(context, components))
         self.model = SplatModel(gaussians, components)
         check_loss_weights(self.config.losses, self.model.loss_terms())
         self.optimizer, self.schedules = self._build_optimizer()
@@ -327,7 +342,8 @@ class Trainer:
         self.model = model_from_state(self.config, state, path)
         self.scene_extent = float(state["scene_extent"])
         self.optimizer, self.schedules = self._build_optimizer()
-        self.optimizer.load_state_dict(state["optimizer"])
+        names = [group["name"] for group in self.optimizer.param_groups]
+        self.optimizer.load_state_dict(optimizer_state_in_order(state["optimizer"], names, path))
         self.strategy.load_state_dict(state["strategy"])
         self.frame_generator.set_state(state["frame_generator"])
         self._frame_queue = list(state["frame_queue"])

@@ -1,5 +1,5 @@
 """Mesh-anchored Gaussians (DRAWER): face frames, clips, straight-through gradients, re-anchoring,
-the bind / after_step hooks, and a tiny `drawer` run."""
+the bind / before_render / after_step hooks, and a tiny `drawer` run."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.mesh_anchor import (ANCHOR_KEY, MeshAnchor, MeshAnchorConfig, clip_tilt,
                                          clip_to_face, face_frames, from_face_local, inradius,
                                          planar_corners, to_face_local)
+from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.per_gaussian import append_gaussians
@@ -103,6 +104,8 @@ class BallConfig(ComponentConfig, kind="test_ball_sdf"):
 
 
 class Ball(Component):
+    phase = Phase.LOSS  # offers a signed distance field, changes nothing
+
     def __init__(self, radius: float):
         super().__init__()
         self.radius = radius
@@ -120,9 +123,9 @@ def anchored_model(count: int, ball: Ball, config: MeshAnchorConfig) -> tuple[Me
     generator = torch.Generator().manual_seed(3)
     direction = nn.functional.normalize(torch.randn(count, 3, generator=generator), dim=1)
     points = direction * (ball.radius + 0.2 * torch.randn(count, 1, generator=generator))
-    attributes = {ANCHOR_KEY: torch.full((count,), -1.0)}
+    buffers = {ANCHOR_KEY: torch.full((count,), -1, dtype=torch.long)}
     gaussians = GaussianModel.from_points(points, torch.rand(count, 3, generator=generator),
-                                          GaussianConfig(), attributes)
+                                          GaussianConfig(), buffers=buffers)
     gaussians.params["quats"].data = torch.randn(count, 4, generator=generator)
     gaussians.params["log_scales"].data += 1.0  # larger than the clip allows
     anchor = config.build()
@@ -163,8 +166,11 @@ def within_band(anchor: MeshAnchor, gaussians: GaussianModel, state: GaussianSta
 def test_anchored_gaussians_are_clipped_forward_and_straight_through_backward():
     ball = Ball(1.0)
     anchor, gaussians = anchored_model(600, ball, MeshAnchorConfig(resolution=24))
-    state = anchor.transform(state_of(gaussians), gaussians, FrameTime(0, 0.0))
-    assert anchor.unanchored(gaussians).numel() == 0  # anchored at the first transform
+    raw = state_of(gaussians)
+    assert anchor.transform(raw, gaussians, FrameTime(0, 0.0)) is raw  # no mesh yet
+    anchor.before_render(gaussians, FrameTime(0, 0.0))
+    assert anchor.unanchored(gaussians).numel() == 0  # anchored before the first render
+    state = anchor.transform(raw, gaussians, FrameTime(0, 0.0))
     # resolution 24 over a box of side 3: cells of 0.125; floats: tolerance 1e-5
     within_band(anchor, gaussians, state, 1e-5)
     raw = gaussians.params["means"].detach()
@@ -183,12 +189,13 @@ def test_anchored_gaussians_are_clipped_forward_and_straight_through_backward():
 def test_reanchoring_after_densification_keeps_every_gaussian_on_a_valid_face():
     ball = Ball(1.0)
     anchor, gaussians = anchored_model(300, ball, MeshAnchorConfig(resolution=24))
-    anchor.transform(state_of(gaussians), gaussians, FrameTime(0, 0.0))
+    anchor.before_render(gaussians, FrameTime(0, 0.0))
     optimizer = torch.optim.Adam([{"name": name, "params": [param]}
                                   for name, param in gaussians.params.items()])
-    copies = {name: value.detach()[:50].clone() for name, value in gaussians.params.items()}
-    fresh = {name: value.detach()[50:80].clone() for name, value in gaussians.params.items()}
-    fresh[ANCHOR_KEY].fill_(-1.0)  # Gaussians no face was given yet
+    rows = gaussians.per_gaussian()
+    copies = {name: value.detach()[:50].clone() for name, value in rows.items()}
+    fresh = {name: value.detach()[50:80].clone() for name, value in rows.items()}
+    fresh[ANCHOR_KEY].fill_(-1)  # Gaussians no face was given yet
     append_gaussians(gaussians, optimizer, {name: torch.cat([copies[name], fresh[name]])
                                             for name in copies})
     ball.radius = 0.8  # the surface moved: the next mesh has other faces
@@ -217,6 +224,7 @@ def test_the_mesh_export_uses_the_anchored_centres_and_the_sdf_the_raw_means():
     anchor, gaussians = anchored_model(400, Ball(1.0), MeshAnchorConfig(resolution=24))
     model = SplatModel(gaussians, {"anchor": anchor, "sdf": field})
     when = FrameTime(3, 0.5)
+    model.before_render(when)
     rendered = model.state_at(when).means.detach()
     raw = gaussians.params["means"].detach()
     assert float((rendered - raw).norm(dim=1).max()) > 0.05  # the clip acted
@@ -238,7 +246,7 @@ def test_the_mesh_export_uses_the_anchored_centres_and_the_sdf_the_raw_means():
 def test_a_run_saves_and_restores_the_mesh_of_its_anchors():
     ball = Ball(1.0)
     anchor, gaussians = anchored_model(100, ball, MeshAnchorConfig(resolution=16))
-    anchor.transform(state_of(gaussians), gaussians, FrameTime(0, 0.0))
+    anchor.before_render(gaussians, FrameTime(0, 0.0))
     restored = MeshAnchorConfig(resolution=16).build()
     restored.load_state_dict(anchor.state_dict())
     assert torch.equal(restored.faces, anchor.faces)
@@ -263,6 +271,8 @@ class StepRecorderConfig(ComponentConfig, kind="test_step_recorder"):
 
 
 class StepRecorder(Component):
+    phase = Phase.LOSS
+
     def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
         assert not torch.is_grad_enabled()
         STEPS_SEEN.append(iteration)
@@ -294,5 +304,6 @@ def test_a_tiny_drawer_run_keeps_its_gaussians_in_the_band_of_the_mesh(small_pha
     sub = GaussianState(state.means[tissue], state.scales[tissue], state.quats[tissue],
                         state.opacities[tissue], state.sh[tissue], state.sh_degree)
     keep = GaussianModel({name: value.detach()[tissue] for name, value in gaussians.params.items()},
-                         gaussians.sh_degree)
+                         gaussians.sh_degree,
+                         {name: value[tissue] for name, value in gaussians.buffer_dict.items()})
     within_band(anchor, keep, sub, 1e-4)  # scene units (mm), float32 on a ~50 mm scene

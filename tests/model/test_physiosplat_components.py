@@ -341,32 +341,42 @@ def test_mask_loss_never_flips_tissue_hidden_behind_the_tool():
     assert logits[1].item() < -4.0 - 1.0
 
 
-def test_no_loss_of_a_step_reaches_the_colour_or_opacity_of_hidden_tissue():
-    """The tool Gaussian in front of the tissue Gaussian: the photometric loss against a dark
-    tool reaches the tool's colour and opacity but not the hidden tissue's (exactly 0: through
-    the tool's residual transmittance it would paint the tissue in the tool's colours); with the
-    tool moved aside, the tissue's gradient is back."""
+def test_no_loss_through_the_render_reaches_hidden_tissue():
+    """The tool Gaussian in front of the tissue Gaussian: the photometric and mask losses
+    against a dark tool reach the tool's colour, opacity, position, scale and rotation, but
+    not the hidden tissue's (exactly 0: through the tool's residual transmittance they would
+    paint the tissue in the tool's colours and move it out from behind the tool); a loss on
+    the state itself (as the biomechanical energies are) still moves the hidden tissue; with
+    the tool moved aside, the tissue's render gradients are back."""
     gaussians, field, model, camera, frame = _tool_before_tissue(0.9)
+    with torch.no_grad():  # anisotropic and turned, so that rotations have a gradient
+        gaussians.params["log_scales"].copy_(torch.tensor([[3.0, 2.0, 1.0]]).log())
+        gaussians.params["quats"].copy_(torch.tensor([[0.9, 0.3, 0.2, 0.1]]))
     when = FrameTime(0, 0.0)
+    names = ("sh_dc", "opacity_logits", "means", "log_scales", "quats")
 
-    def gradients() -> tuple[Tensor, Tensor]:
+    def gradients(state_weight: float = 0.0) -> dict[str, Tensor]:
+        """|gradient| per Gaussian [2] of each parameter in `names`."""
         for parameter in gaussians.params.values():
             parameter.grad = None
         output, state = model.render(camera, when)
         context = RenderContext(frame=frame, when=when, camera=camera, output=output,
                                 state=state, gaussians=gaussians, iteration=1)
         loss = field.losses(context, frozenset({"mask"}))["mask"] + output.rgb.abs().mean()
-        loss.backward()
-        params = gaussians.params
-        return params["sh_dc"].grad.abs().sum(dim=1), params["opacity_logits"].grad.abs()
+        (loss + state_weight * state.means.sum()).backward()
+        return {name: gaussians.params[name].grad.abs().reshape(2, -1).sum(dim=1)
+                for name in names}
 
-    colour, opacity = gradients()
-    assert colour[0] == 0 and opacity[0] == 0  # hidden tissue
-    assert colour[1] > 0 and opacity[1] > 0  # the tool
+    hidden = gradients()
+    for name in names:
+        assert hidden[name][0] == 0, name  # hidden tissue
+        assert hidden[name][1] > 0, name  # the tool
+    assert gradients(state_weight=1.0)["means"][0] > 0
     with torch.no_grad():
         field.translations[0, 0] = 30.0  # the tool leaves the view
-    colour, opacity = gradients()
-    assert colour[0] > 0 and opacity[0] > 0
+    visible = gradients()
+    for name in names:
+        assert visible[name][0] > 0, name
 
 
 def test_specular_normals_are_smoothed_against_depth_jitter():

@@ -13,10 +13,10 @@ from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.strategy import DensifyStrategy
 
 
-def setup(log_scales: list[float], opacities: list[float]):
+def setup(log_scales: list[float], opacities: list[float], buffers: dict | None = None):
     n = len(log_scales)
     model = GaussianModel.from_points(torch.arange(3 * n, dtype=torch.float32).reshape(n, 3),
-                                      torch.rand(n, 3), GaussianConfig())
+                                      torch.rand(n, 3), GaussianConfig(), buffers=buffers)
     with torch.no_grad():
         model.params["log_scales"][:] = torch.tensor(log_scales)[:, None]
         model.params["opacity_logits"][:] = torch.logit(torch.tensor(opacities))
@@ -49,6 +49,24 @@ def test_clone_small_and_split_large_high_gradient_gaussians():
     # the original and its clone composite to the original opacity 0.9
     shared = torch.sigmoid(model.params["opacity_logits"][[0, 2]])
     assert torch.allclose(1 - (1 - shared[0]) * (1 - shared[1]), torch.tensor(0.9), atol=1e-5)
+
+
+def test_buffers_follow_their_rows_through_clone_split_and_prune():
+    """A per-Gaussian buffer (each Gaussian's origin: the row it started in) is copied to clones
+    and split children and dropped with pruned rows, and has no optimiser group: every row's
+    colour, which densification leaves alone, is still its origin's."""
+    # 0 small (cloned), 1 large (split), 2 transparent (pruned), 3 low gradient (kept)
+    model, optimizer = setup([math.log(0.5), math.log(2.0), math.log(0.5), math.log(0.5)],
+                             [0.9, 0.9, 0.001, 0.9], buffers={"origin": torch.arange(4)})
+    colours = model.params["sh_dc"].detach().clone()
+    strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100,
+                               iterations=ITERATIONS)
+    strategy.step_post_backward(1, model, optimizer, torch.tensor([1.0, 1.0, 0.1, 0.1]),
+                                torch.ones(4))
+    origin = model.buffer_dict["origin"]
+    assert origin.dtype == torch.int64 and sorted(origin.tolist()) == [0, 0, 1, 1, 3]
+    assert torch.equal(model.params["sh_dc"].detach(), colours[origin])
+    assert "origin" not in [group["name"] for group in optimizer.param_groups]
 
 
 def test_prune_transparent_and_oversized():

@@ -1,7 +1,8 @@
 """The component contract is enough for a new method: a toy component defined here, outside
-`surgsplat/`, owns a per-Gaussian scalar, renders it as a channel, and supervises it with its own
-loss. It trains, is densified with the Gaussians, is checkpointed, resumes exactly, and is
-loaded back from its run folder, without any change to surgsplat's code."""
+`surgsplat/`, owns a per-Gaussian scalar and a per-Gaussian buffer, renders the scalar as a
+channel, and supervises it with its own loss. It trains, is densified with the Gaussians, is
+checkpointed, resumes exactly, and is loaded back from its run folder, without any change to
+surgsplat's code."""
 
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
                                        RenderContext, SetupContext)
 from surgsplat.model.dynamic import render_frame
+from surgsplat.model.phases import Phase
 from surgsplat.pipeline.evaluate import evaluate
 from surgsplat.pipeline.render import write_run_videos
 from surgsplat.pipeline.train import train_run
@@ -33,6 +35,8 @@ from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, LOG_FILE, Trainer
 
 PACKAGE = Path(__file__).resolve().parents[2] / "surgsplat"
 ATTRIBUTE = "toy_logit"
+BUFFER = "toy_origin"
+"""The toy's per-Gaussian buffer: the row each Gaussian (or its ancestor) started in."""
 TARGET = 0.25
 
 
@@ -50,6 +54,8 @@ class ToyConfig(ComponentConfig, kind="toy_scalar"):
 
 
 class ToyComponent(Component):
+    phase = Phase.LOSS
+
     def __init__(self, config: ToyConfig):
         super().__init__()
         self.config = config
@@ -59,6 +65,9 @@ class ToyComponent(Component):
 
     def attribute_lrs(self) -> dict[str, float]:
         return {ATTRIBUTE: self.config.lr}
+
+    def initial_buffers(self, context: SetupContext) -> dict[str, Tensor]:
+        return {BUFFER: torch.arange(context.points.shape[0])}
 
     def render_channels(self, state, gaussians, camera, when) -> dict[str, Tensor]:
         return {"toy": torch.sigmoid(gaussians.params[ATTRIBUTE])}
@@ -98,9 +107,13 @@ def test_toy_component_trains_checkpoints_resumes_and_loads(small_phantom, tmp_p
     initial_count = straight.model.gaussians.num_gaussians
     straight.fit()
     assert toy_error(straight.model, scene) < 0.5 * initial_error
-    # densification changed the count and carried the toy attribute along
-    params = straight.model.gaussians.params
+    # densification changed the count and carried the toy attribute and buffer along; the
+    # buffer has no optimiser group
+    params, buffers = straight.model.gaussians.params, straight.model.gaussians.buffer_dict
     assert params[ATTRIBUTE].shape[0] == params["means"].shape[0] != initial_count
+    assert buffers[BUFFER].shape[0] == params["means"].shape[0]
+    assert int(buffers[BUFFER].max()) < initial_count
+    assert BUFFER not in [group["name"] for group in straight.optimizer.param_groups]
     log = [json.loads(line) for line in (tmp_path / "straight" / LOG_FILE).read_text().splitlines()]
     assert all("toy" in entry["terms"] for entry in log)
     saved = json.loads((tmp_path / "straight" / CONFIG_FILE).read_text())
@@ -123,10 +136,12 @@ def test_toy_component_trains_checkpoints_resumes_and_loads(small_phantom, tmp_p
     for name, value in straight.model.gaussians.params.items():
         torch.testing.assert_close(resumed.model.gaussians.params[name], value,
                                    rtol=1e-4, atol=1e-5, msg=name)
+    assert torch.equal(resumed.model.gaussians.buffer_dict[BUFFER], buffers[BUFFER])
 
     run = load_trained_run(tmp_path / "straight")
     assert isinstance(run.model.components["toy"], ToyComponent)
     torch.testing.assert_close(run.model.gaussians.params[ATTRIBUTE], params[ATTRIBUTE].detach())
+    assert torch.equal(run.model.gaussians.buffer_dict[BUFFER], buffers[BUFFER])
     assert toy_error(run.model, scene) == toy_error(straight.model, scene)
 
 
@@ -139,6 +154,8 @@ class FrozenGrowthConfig(ComponentConfig, kind="toy_frozen_growth"):
 
 
 class FrozenGrowthComponent(Component):
+    phase = Phase.OPACITY
+
     def transform(self, state, gaussians, when):
         return state.replace(opacities=state.opacities * 0.5)
 
@@ -184,6 +201,8 @@ class FrameClockConfig(ComponentConfig, kind="toy_frame_clock"):
 
 
 class FrameClockComponent(Component):
+    phase = Phase.LOSS
+
     def __init__(self, config: FrameClockConfig):
         super().__init__()
         self.config = config
@@ -224,6 +243,8 @@ class ToolMarkConfig(ComponentConfig, kind="toy_tool_mark"):
 
 
 class ToolMarkComponent(Component):
+    phase = Phase.LOSS
+
     def tool_members(self, gaussians) -> Tensor:
         return gaussians.params["means"].detach()[:, 0] > 0
 
