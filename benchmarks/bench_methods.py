@@ -146,7 +146,7 @@ class Target:
     """A bound on one metric of one case: value >= bound (at_least) or <= bound, where the
     bound is `limit` alone, or `limit` added to (relative=False, e.g. dB) or multiplied by
     (relative=True) the references' value: the largest of them for at_least, else the
-    smallest."""
+    smallest. The references' value is their `reference_metric` when given, else `metric`."""
 
     case: str
     metric: str
@@ -154,11 +154,13 @@ class Target:
     limit: float
     references: tuple[str, ...] = ()
     relative: bool = False
+    reference_metric: str | None = None
 
     def check(self, rows: dict[str, dict]) -> dict | None:
         """The target as measured on `rows` (by case), or None when a row or value is missing."""
         value = rows.get(self.case, {}).get(self.metric)
-        refs = [rows.get(name, {}).get(self.metric) for name in self.references]
+        refs = [rows.get(name, {}).get(self.reference_metric or self.metric)
+                for name in self.references]
         if value is None or any(ref is None for ref in refs):
             return None
         bound = self.limit
@@ -167,7 +169,7 @@ class Target:
             bound = ref * self.limit if self.relative else ref + self.limit
         met = value >= bound if self.at_least else value <= bound
         return {"case": self.case, "metric": self.metric, "value": value,
-                "relation": ">=" if self.at_least else "<=", "bound": round(bound, 4),
+                "relation": ">=" if self.at_least else "<=", "bound": float(f"{bound:.4g}"),
                 "rule": self.describe(), "met": bool(met)}
 
     def describe(self) -> str:
@@ -175,6 +177,8 @@ class Target:
         if not self.references:
             return f"{self.metric} {relation} {self.limit:g}"
         refs = " / ".join(self.references)
+        if self.reference_metric:
+            refs = f"{refs}'s {self.reference_metric}"
         ref = f"max({refs})" if self.at_least and len(self.references) > 1 else refs
         bound = f"{self.limit:g} x {ref}" if self.relative else f"{ref} {self.limit:+g}"
         return f"{self.metric} {relation} {bound}"
@@ -197,6 +201,8 @@ FIDELITY_TARGETS = (
     Target("physiosplat", "psnr_occluded", True, 1.0, ("endogaussian",)),
     Target("physiosplat", "depth_rmse_occluded_mm", False, 0.8, ("endogaussian",), relative=True),
     Target("physiosplat", "psnr_specular", True, 1.0, ("endogaussian",)),
+    Target("physiosplat", "collision_fraction", False, 0.0, ("physiosplat",),
+           reference_metric="collision_fraction_truth"),
     Target("lumistate-hivar", "psnr_tissue", True, 0.5, ("deform3dgs-hivar",)),
     Target("lumistate", "psnr_tissue", True, -0.2, ("deform3dgs",)),  # livar = standard images
     Target("lumistate-hivar", "reflectance_error", False, 0.5, ("deform3dgs-hivar",),
@@ -217,7 +223,8 @@ SUITES = {
         metrics=("psnr_tissue", "psnr_tissue_gain", "psnr_occluded", "depth_rmse_occluded_mm",
                  "psnr_specular", "depth_rmse_mm", "normal_error_deg_median",
                  "gaussians_p2s_median_mm", "gaussians_p2s_weighted_median_mm",
-                 "mesh_p2s_median_mm", "reflectance_error", "collisions",
+                 "mesh_p2s_median_mm", "reflectance_error", "collisions", "collision_fraction",
+                 "collision_fraction_truth",
                  "hinge_axis_error_deg", "jaw_angle_rmse_deg"),
         baseline="deform3dgs", targets=FIDELITY_TARGETS),
     "endoplanar": Suite(

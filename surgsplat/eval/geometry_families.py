@@ -24,6 +24,7 @@ from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
 from surgsplat.eval.normals import normal_angle_deg, surface_normals
 from surgsplat.export.mesh import FrameMesh, MeshExtractor, coverage
 from surgsplat.image.pinhole import backproject, inside_image, project_points
+from surgsplat.model.physics import ToolProxy
 from surgsplat.train.run import TrainedRun
 
 GEOMETRY_POINTS = 60_000
@@ -119,6 +120,36 @@ class GaussianCentresFamily(GroundTruthMeshFamily):
                                  "lower weighted median"}
 
 
+class CollisionFamily(GroundTruthMeshFamily):
+    """collision_fraction and collision_fraction_truth: the share of the reconstructed tissue,
+    and of the true tissue surface, inside the tool's collision proxy (methods with one)."""
+
+    name = "collision_truth"
+
+    def score_against_mesh(self, view: FrameView) -> dict[str, float]:
+        model = view.run.model
+        motion, tissue = model.tool_motion(), model.tissue_members()
+        if motion is None or tissue is None:
+            return {}
+        state = model.state_at(view.when)
+        proxy = motion.proxy(state, model.gaussians)
+        if proxy is None:
+            return {}
+        truth = sample_surface(*view.gt_mesh, GEOMETRY_POINTS, seed=view.frame.index)
+        return collision_fractions(proxy, {
+            "collision_fraction": state.means.detach()[tissue],
+            "collision_fraction_truth": torch.from_numpy(truth).to(state.means.dtype)},
+            view.frame)
+
+    def conventions(self) -> dict[str, str]:
+        return {"collision_truth": "collision_fraction: share of the deformed tissue Gaussian "
+                                   "centres seen in the field of view that lie inside the tool's "
+                                   "collision proxy (as `collisions` counts them); "
+                                   "collision_fraction_truth: the same test on area-uniform "
+                                   "samples of the gt tissue mesh, what a perfect "
+                                   "reconstruction would score against this tool proxy"}
+
+
 class NormalsFamily(MetricFamily):
     """normal_error_deg_*: rendered (or rendered-depth) normals against the gt normals, pooled
     over the tissue pixels of every test frame."""
@@ -179,15 +210,33 @@ def mesh_geometry(mesh: FrameMesh, frame: Frame, gt_vertices: np.ndarray,
     return row
 
 
+def seen_in_frame(points: torch.Tensor, frame: Frame) -> torch.Tensor:
+    """[P] bool: the world points [P, 3] that project inside `frame`'s field of view."""
+    camera = frame.camera
+    pixel, z = project_points(points, camera.K, camera.world_to_camera)
+    seen = inside_image(pixel, z, camera.width, camera.height)
+    seen[seen.clone()] = frame.fov[pixel[seen, 1], pixel[seen, 0]]
+    return seen
+
+
+def collision_fractions(proxy: ToolProxy, points: dict[str, torch.Tensor],
+                        frame: Frame) -> dict[str, float]:
+    """For each named set of world points [P, 3]: the share of those seen in `frame`'s field of
+    view that lie inside `proxy` (no entry when none is seen)."""
+    row = {}
+    for key, world in points.items():
+        seen = seen_in_frame(world, frame)
+        if seen.any():
+            row[key] = float((proxy.sdf(world[seen], 1.0) < 0).float().mean())
+    return row
+
+
 def gaussian_geometry(means: torch.Tensor, opacities: torch.Tensor, frame: Frame,
                       gt_vertices: np.ndarray, gt_faces: np.ndarray,
                       seed: int) -> dict[str, float]:
     """gaussians_p2s_* of the deformed centres [N, 3] seen inside `frame`'s field of view, plain
     and weighted by their rendered opacities [N] (see the conventions)."""
-    camera = frame.camera
-    pixel, z = project_points(means, camera.K, camera.world_to_camera)
-    seen = inside_image(pixel, z, camera.width, camera.height)
-    seen[seen.clone()] = frame.fov[pixel[seen, 1], pixel[seen, 0]]
+    seen = seen_in_frame(means, frame)
     if not seen.any():
         return {}
     rows = _subsample(seen.nonzero()[:, 0].numpy(), seed)

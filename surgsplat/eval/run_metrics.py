@@ -18,8 +18,8 @@ import numpy as np
 
 from surgsplat.eval.articulation_metrics import ArticulationFamily
 from surgsplat.eval.component_metrics import ComponentFamily
-from surgsplat.eval.geometry_families import (GaussianCentresFamily, MeshFamily, NormalsFamily,
-                                              SurfaceFamily)
+from surgsplat.eval.geometry_families import (CollisionFamily, GaussianCentresFamily, MeshFamily,
+                                              NormalsFamily, SurfaceFamily)
 from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
 from surgsplat.eval.render_families import (DecompositionFamily, DepthFamily, ImageFamily,
                                             OccludedFamily, SpecularFamily)
@@ -33,7 +33,8 @@ METRICS_FILE = "metrics.json"
 """RUN/metrics.json: `evaluate_run`'s metrics with the run's method and scene."""
 METRIC_FAMILIES: tuple[type[MetricFamily], ...] = (
     ImageFamily, DepthFamily, SpecularFamily, OccludedFamily, ComponentFamily, SurfaceFamily,
-    MeshFamily, GaussianCentresFamily, NormalsFamily, DecompositionFamily, ArticulationFamily)
+    MeshFamily, GaussianCentresFamily, CollisionFamily, NormalsFamily, DecompositionFamily,
+    ArticulationFamily)
 """Every metric family, in the order their metrics appear in metrics.json."""
 DEPTH_KEYS = ("depth_rmse", "depth_rmse_occluded")
 """Metrics in the scene's depth unit, named with it when it is millimetres."""

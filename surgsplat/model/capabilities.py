@@ -9,11 +9,16 @@ class or probes for attributes; a caller that cannot do without one says so with
 from __future__ import annotations
 
 from contextlib import AbstractContextManager
-from typing import Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from torch import Tensor
 
 from surgsplat.errors import SurgsplatError
+
+if TYPE_CHECKING:
+    from surgsplat.model.gaussians import GaussianModel
+    from surgsplat.model.physics import ToolProxy
+    from surgsplat.model.state import GaussianState
 
 Offered = TypeVar("Offered")
 
@@ -48,6 +53,10 @@ class ToolMotion(Protocol):
     def pose(self, index: int) -> tuple[Tensor, Tensor]:
         """Rotation vector [3] and translation [3] (scene units) taking the canonical tool to
         frame `index`."""
+
+    def proxy(self, state: GaussianState, gaussians: GaussianModel) -> ToolProxy | None:
+        """The tool's collision proxy in `state` (the Gaussians at one time), which the
+        `collisions` diagnostic tests; None when no tool Gaussian is opaque enough."""
 
 
 def required(capability: Offered | None, missing: str) -> Offered:

@@ -50,7 +50,8 @@ from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, 
                                        SetupContext)
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.phases import Phase
-from surgsplat.model.physics import PHANTOM_EXTENT_MM, arap_strain, neighbour_graph, tool_proxy
+from surgsplat.model.physics import (PHANTOM_EXTENT_MM, ToolProxy, arap_strain, neighbour_graph,
+                                     tool_proxy)
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
@@ -287,6 +288,12 @@ class ToolField(Component):
                              scales=torch.where(column, params["log_scales"].exp(), state.scales),
                              opacities=opacities)
 
+    def proxy(self, state: GaussianState, gaussians: GaussianModel) -> ToolProxy | None:
+        """The tool proxy (`model.physics`) of the tool Gaussians in `state` at least
+        min_tool_opacity opaque."""
+        return tool_proxy(state.means, state.scales, state.opacities,
+                          self.tool_members(gaussians), self.config.min_tool_opacity)
+
     # ---- semantic channel and its loss ----
     def render_channels(self, state, gaussians: GaussianModel, camera, when) -> dict[str, Tensor]:
         probability = 1.0 - torch.sigmoid(gaussians.params[SEMANTIC_KEY])  # [N]
@@ -327,8 +334,7 @@ class ToolField(Component):
         state, frame = context.state, context.frame
         tool = self.tool_members(context.gaussians)
         weights = torch.ones(tool.shape[0])
-        proxy = tool_proxy(state.means, state.scales, state.opacities, tool,
-                           self.config.min_tool_opacity)
+        proxy = self.proxy(state, context.gaussians)
         if proxy is not None:
             margin = self.config.densify_margin * float(self.unit)
             weights[proxy.sdf(state.means, 2 * margin) < margin] = 0.0
@@ -373,8 +379,7 @@ class ToolField(Component):
                           when: FrameTime) -> Diagnostics:
         tool = self.tool_members(gaussians)
         tissue = ~tool
-        proxy = tool_proxy(state.means, state.scales, state.opacities, tool,
-                           self.config.min_tool_opacity)
+        proxy = self.proxy(state, gaussians)
         collisions = 0
         if proxy is not None and tissue.any():
             collisions = int((proxy.sdf(state.means[tissue], 1.0) < 0).sum())

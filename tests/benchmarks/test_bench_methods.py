@@ -31,6 +31,17 @@ def test_targets_take_the_stricter_reference_and_say_whether_they_are_met():
     assert Target("method", "psnr_occluded", True, 0.0, ("base",)).check(rows) is None
 
 
+def test_a_target_can_bound_a_metric_by_another_metric_of_the_same_row():
+    rows = {"method": {"collision_fraction": 2e-5, "collision_fraction_truth": 3e-5}}
+    target = Target("method", "collision_fraction", False, 0.0, ("method",),
+                    reference_metric="collision_fraction_truth")
+    result = target.check(rows)
+    assert result["bound"] == 3e-5 and result["met"]
+    assert "collision_fraction_truth" in result["rule"]
+    rows["method"]["collision_fraction"] = 4e-5
+    assert not target.check(rows)["met"]
+
+
 def test_every_fidelity_target_names_a_case_of_the_suite_and_every_preset_is_measured():
     cases = {case.name for case in FIDELITY_CASES}
     assert all({target.case, *target.references} <= cases for target in FIDELITY_TARGETS)

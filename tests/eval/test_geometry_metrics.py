@@ -10,7 +10,8 @@ import torch
 from surgsplat.image.pinhole import backproject
 from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.scene import load_scene
-from surgsplat.eval.geometry_families import gaussian_geometry
+from surgsplat.eval.geometry_families import collision_fractions, gaussian_geometry, seen_in_frame
+from surgsplat.model.physics import ToolProxy
 from surgsplat.eval.geometry_metrics import (chamfer_mm, depth_rmse, geometry_metrics,
                                              point_to_surface, point_triangle_distance,
                                              sample_surface, weighted_mean_median)
@@ -273,3 +274,23 @@ def test_opacity_weighted_gaussian_p2s_discounts_faded_floaters(small_phantom):
     assert row["gaussians_p2s_weighted_median_mm"] == pytest.approx(0.0, abs=1e-3)
     assert row["gaussians_p2s_weighted_mean_mm"] == pytest.approx(5.0 * 2e-3 / (1 + 2e-3),
                                                                  abs=2e-3)
+
+
+def test_collision_fractions_count_the_seen_points_inside_the_tool_proxy(small_phantom):
+    """Tissue points on a test frame's depth surface and one tool ball of radius 3 around one
+    of them: the fraction inside is the brute-force share within 3 of the centre among the
+    points seen in the field of view (exact); points behind the camera are not counted."""
+    scene = load_scene(small_phantom)
+    frame = next(f for f in scene.frames if f.is_test)
+    camera = frame.camera
+    surface = backproject(frame.depth, camera.K, frame.depth > 0, camera.camera_to_world)
+    behind = surface[:50] - 1000.0 * camera.camera_to_world[:3, 2]  # far behind the camera
+    centre = surface[len(surface) // 2]
+    proxy = ToolProxy(centre[None], torch.tensor([3.0]))
+    row = collision_fractions(proxy, {"tissue": torch.cat([surface, behind]),
+                                      "none": behind}, frame)
+    seen = seen_in_frame(surface, frame)
+    inside = (surface[seen] - centre).norm(dim=1) < 3.0
+    assert row["tissue"] == pytest.approx(float(inside.float().mean()), abs=0)
+    assert 0 < row["tissue"] < 0.5
+    assert "none" not in row
