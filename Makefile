@@ -23,9 +23,10 @@ demo: $(STAMP)
 	$(BIN)/surgsplat demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=20
 
-# Development tier: everything but the tests marked slow (end-to-end runs).
+# Development tier: everything but the tests marked slow (end-to-end runs, faults injected into
+# processes of their own, real browsers, ISA variants this CPU only runs under emulation).
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"
 

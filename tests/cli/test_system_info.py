@@ -10,7 +10,8 @@ from surgsplat.render import native
 
 
 def test_info_system_reports_cpu_isa_and_threads(cli):
-    result = cli("--threads", "1", "info", "--system", "--json")
+    # a process of its own: --threads set before torch starts its threads, as a user sets it
+    result = cli("--threads", "1", "info", "--system", "--json", process=True)
     assert result.returncode == 0, result.stderr
     info = json.loads(result.stdout)
     assert info["cpu"] == native.cpu_model()

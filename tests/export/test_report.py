@@ -41,6 +41,7 @@ def test_report_of_two_runs(two_runs, cli, tmp_path):
         assert image is not None and image.std() > 1.0  # decodes, and is not blank
 
 
+@pytest.mark.slow  # a real chromium
 def test_a_browser_opens_the_report(two_runs, cli, browser, tmp_path):
     out = tmp_path / "report.html"
     assert cli("report", str(two_runs[0]), "--out", str(out), "--frames", "2").returncode == 0

@@ -3,8 +3,6 @@ runs give one clear line. One small physiosplat run (few iterations) serves ever
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,19 +18,15 @@ FRAME = 8
 
 
 @pytest.fixture(scope="module")
-def exported(small_phantom: Path, tmp_path_factory) -> tuple[Path, Path]:
+def exported(small_phantom: Path, tmp_path_factory, cli) -> tuple[Path, Path]:
     """(run folder, simulation folder of frame FRAME) of a 30-iteration physiosplat run."""
-    def run_cli(*args: str) -> subprocess.CompletedProcess:  # as the `cli` fixture runs it
-        return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
-                              capture_output=True, text=True, timeout=300)
-
     root = tmp_path_factory.mktemp("sim")
     run, sim = root / "run", root / "sim"
-    trained = run_cli("train", "--method", "physiosplat", "--data", str(small_phantom),
-                      "--out", str(run), "--iters", "30")
+    trained = cli("train", "--method", "physiosplat", "--data", str(small_phantom),
+                  "--out", str(run), "--iters", "30")
     assert trained.returncode == 0, trained.stderr
     assert (run / "articulation.json").is_file()  # written at the end of training
-    done = run_cli("export", str(run), "--sim", str(sim), "--frame", str(FRAME))
+    done = cli("export", str(run), "--sim", str(sim), "--frame", str(FRAME))
     assert done.returncode == 0, done.stderr
     return run, sim
 

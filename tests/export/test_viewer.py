@@ -45,6 +45,7 @@ def run_dir(small_phantom, tmp_path_factory):
     return folder
 
 
+@pytest.mark.slow  # a real viser server and a real chromium
 def test_browser_shows_the_render_and_the_slider_changes_the_frame(run_dir, browser):
     viewer = RunViewer(load_trained_run(run_dir), port=free_port())
     try:

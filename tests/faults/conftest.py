@@ -1,8 +1,13 @@
-"""Fault injection through real processes: `surgsplat` runs as a user runs it (a subprocess of
-this interpreter), and is killed, stopped, raced, starved of disk or denied writes."""
+"""Fault injection: `surgsplat` is killed, stopped, raced, starved of disk or denied writes.
+What needs a process of its own runs in one, a subprocess of this interpreter (`start`): a
+command killed or stopped by a signal, a writer racing another. The rest runs in this process
+through the `cli` fixture of tests/conftest.py, with the same messages and exit status: the
+commands that meet a fault's result, and those a fault is patched into (`run_patched`)."""
 
 from __future__ import annotations
 
+import functools
+import importlib
 import json
 import subprocess
 import sys
@@ -16,13 +21,12 @@ TRAIN_FAST = ("--set", "init.max_points=1500", "--set", "densify.start=0",
               "--set", "densify.every=5")
 """Settings that keep the phantom runs of these tests to a few seconds."""
 
-PATCHED_MAIN = """
-import errno, os, sys
-{patch}
-from surgsplat.cli.main import main
-sys.argv = ["surgsplat", *sys.argv[1:]]
-main()
-"""
+PATCH_PRELUDE = "import errno, os, sys\n"
+"""What a fault's patch may use without importing it."""
+
+PATCHABLE = ("builtins", "io", "os", "numpy", "torch")
+"""The modules whose functions a patch replaces (open, os.open, os.mkdir, numpy.save,
+torch.save...)."""
 
 
 def start(*args: str) -> subprocess.Popen:
@@ -31,11 +35,38 @@ def start(*args: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def run_patched(patch: str, *args: str) -> subprocess.CompletedProcess:
-    """`surgsplat *args` in a process where the Python code `patch` ran first (to inject a
-    fault such as a full disk)."""
-    return subprocess.run([sys.executable, "-c", PATCHED_MAIN.format(patch=patch), *args],
-                          capture_output=True, text=True, timeout=300)
+def run_patched(cli, patch: str, *args: str) -> subprocess.CompletedProcess:
+    """`surgsplat *args` with the Python code `patch` run first (to inject a fault such as a
+    full disk), through `cli` (the fixture of tests/conftest.py: in this process); what the
+    patch replaced in the PATCHABLE modules is put back afterwards. surgsplat looks these
+    functions up when it calls them (no module of it binds one at import, as `from os import
+    mkdir` would), so the patch acts as it would in a fresh process where it ran first."""
+    modules = [importlib.import_module(name) for name in PATCHABLE]
+    before = [dict(vars(module)) for module in modules]
+
+    def replaced() -> list[set]:
+        return [{key for key, value in vars(module).items()
+                 if key not in old or old[key] is not value}
+                for module, old in zip(modules, before)]
+
+    def put_back(changed: list[set]) -> None:
+        for module, old, keys in zip(modules, before, changed):
+            for key in keys:
+                if key in old:
+                    setattr(module, key, old[key])
+                else:
+                    delattr(module, key)
+
+    try:
+        exec(compile(PATCH_PRELUDE + patch, "<fault patch>", "exec"), {"__name__": "patch"})
+    except BaseException:
+        put_back(replaced())
+        raise
+    changed = replaced()
+    try:
+        return cli(*args)
+    finally:
+        put_back(changed)
 
 
 def wait_for(condition, timeout: float = 120.0, what: str = "condition") -> None:
@@ -65,7 +96,7 @@ def strictly_increasing(values: list[int]) -> bool:
 
 
 @pytest.fixture
-def faults(one_error_line):
+def faults(one_error_line, cli):
     """The helpers of this folder, as attributes; processes it started that are still running
     at the end of the test are killed."""
     started: list[subprocess.Popen] = []
@@ -74,8 +105,8 @@ def faults(one_error_line):
         started.append(start(*args))
         return started[-1]
 
-    yield SimpleNamespace(start=start_tracked, run_patched=run_patched, wait_for=wait_for,
-                          logged_iterations=logged_iterations,
+    yield SimpleNamespace(start=start_tracked, run_patched=functools.partial(run_patched, cli),
+                          wait_for=wait_for, logged_iterations=logged_iterations,
                           strictly_increasing=strictly_increasing,
                           one_error_line=one_error_line, TRAIN_FAST=TRAIN_FAST)
     for process in started:

@@ -5,6 +5,7 @@ a traceback, and the last good checkpoint loads."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 
@@ -12,6 +13,8 @@ import pytest
 
 from surgsplat.train.checkpoint import load_checkpoint, previous_path
 from surgsplat.train.trainer import CHECKPOINT
+
+from .conftest import TRAIN_FAST
 
 FULL_DISK = """
 import torch
@@ -49,16 +52,23 @@ builtins.open, os.open, os.mkdir = guarded_open, guarded_os_open, guarded_mkdir
 """
 
 
-@pytest.fixture
-def trained(small_phantom, tmp_path, cli, faults):
+@pytest.fixture(scope="module")
+def pristine(small_phantom, tmp_path_factory, cli):
     """A run of 4 iterations with checkpoints at 2 and 4 (previous.pt holds iteration 2)."""
-    run = tmp_path / "run"
+    run = tmp_path_factory.mktemp("trained") / "run"
     done = cli("train", "--data", str(small_phantom), "--out", str(run), "--iters", "4",
-               "--set", "train.checkpoint_every=2", *faults.TRAIN_FAST)
+               "--set", "train.checkpoint_every=2", *TRAIN_FAST)
     assert done.returncode == 0, done.stderr
     return run
 
 
+@pytest.fixture
+def trained(pristine, tmp_path):
+    """A copy of that run, which the test may change."""
+    return shutil.copytree(pristine, tmp_path / "run")
+
+
+@pytest.mark.slow  # the first writer trains in a process of its own until it is stopped
 def test_two_writers_of_one_run_folder(small_phantom, tmp_path, cli, faults):
     run = tmp_path / "run"
     first = faults.start("train", "--data", str(small_phantom), "--out", str(run), "--iters",

@@ -9,8 +9,6 @@ import os
 import shutil
 import socket
 import stat
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -47,14 +45,6 @@ fail (with a limit inside the tensors' data, as a real full disk makes them fail
 itself raises a RuntimeError about its zip container)."""
 
 
-def surgsplat(*args: str, timeout: float = 300, env: dict | None = None
-              ) -> subprocess.CompletedProcess:
-    """`surgsplat *args` in a subprocess; TimeoutExpired (the process killed) when it hangs."""
-    return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
-                          capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, **(env or {})})
-
-
 @pytest.fixture(scope="module")
 def scene(small_phantom, tmp_path_factory) -> Path:
     """The small phantom without the ground-truth mesh of test frame 9."""
@@ -64,11 +54,11 @@ def scene(small_phantom, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def pristine_run(scene, tmp_path_factory) -> Path:
+def pristine_run(scene, tmp_path_factory, cli) -> Path:
     """A run of 4 iterations of `scene` with checkpoints at 2 and 4."""
     run = tmp_path_factory.mktemp("trained") / "run"
-    done = surgsplat("train", "--data", str(scene), "--out", str(run), "--iters", "4",
-                     "--set", "train.checkpoint_every=2", "--set", "init.max_points=1500")
+    done = cli("train", "--data", str(scene), "--out", str(run), "--iters", "4",
+               "--set", "train.checkpoint_every=2", "--set", "init.max_points=1500")
     assert done.returncode == 0, done.stderr
     return run
 
@@ -81,15 +71,16 @@ def run(pristine_run, tmp_path) -> Path:
 
 # ---- class 3: render on a full disk ----
 
-def test_render_on_a_full_disk_is_one_line_and_keeps_the_old_videos(run, tmp_path,
-                                                                   one_error_line):
-    assert surgsplat("render", str(run), "--fps", "5").returncode == 0
+def test_render_on_a_full_disk_is_one_line_and_keeps_the_old_videos(cli, run, tmp_path,
+                                                                   one_error_line, monkeypatch):
+    assert cli("render", str(run), "--fps", "5").returncode == 0
     videos = run / "videos"
     before = {path.name: path.read_bytes() for path in videos.iterdir()}
     ffmpeg = tmp_path / "ffmpeg"
     ffmpeg.write_text(FULL_DISK_FFMPEG)
     ffmpeg.chmod(ffmpeg.stat().st_mode | stat.S_IXUSR)
-    full = surgsplat("render", str(run), "--fps", "5", env={"IMAGEIO_FFMPEG_EXE": str(ffmpeg)})
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(ffmpeg))  # read by every get_ffmpeg_exe()
+    full = cli("render", str(run), "--fps", "5")
     line = one_error_line(full)
     assert line.startswith(f"error: {videos}/") and line.endswith(".mp4: No space left on device")
     assert {path.name: path.read_bytes() for path in videos.iterdir()} == before
@@ -105,32 +96,29 @@ def listening_socket() -> socket.socket:
     return taken
 
 
-def test_view_refuses_a_port_in_use(pristine_run, one_error_line):
+def test_view_refuses_a_port_in_use(cli, pristine_run, one_error_line):
     with listening_socket() as taken:
         port = taken.getsockname()[1]
-        line = one_error_line(surgsplat("view", str(pristine_run), "--port", str(port),
-                                        timeout=120))
+        line = one_error_line(cli("view", str(pristine_run), "--port", str(port), timeout=120))
     assert f"--port {port}" in line and "Address already in use" in line
 
 
-def test_view_on_a_host_it_cannot_bind_stops_at_once(pristine_run, one_error_line):
+def test_view_on_a_host_it_cannot_bind_stops_at_once(cli, pristine_run, one_error_line):
     for host in ("192.0.2.1", "no-such-host.invalid"):  # not this machine's; does not resolve
-        line = one_error_line(surgsplat("view", str(pristine_run), "--host", host,
-                                        timeout=120))
+        line = one_error_line(cli("view", str(pristine_run), "--host", host, timeout=120))
         assert f"--host {host}" in line and "cannot serve there" in line
 
 
 @pytest.mark.parametrize("height", ["0", "-5"])
-def test_view_refuses_a_height_below_one(pristine_run, one_error_line, height):
-    line = one_error_line(surgsplat("view", str(pristine_run), "--height", height,
-                                    timeout=120))
+def test_view_refuses_a_height_below_one(cli, pristine_run, one_error_line, height):
+    line = one_error_line(cli("view", str(pristine_run), "--height", height, timeout=120))
     assert "--height must be in 1.." in line
 
 
 # ---- class 9: metrics over fewer frames ----
 
-def test_eval_says_which_metrics_cover_fewer_frames(run):
-    done = surgsplat("eval", str(run))
+def test_eval_says_which_metrics_cover_fewer_frames(cli, run):
+    done = cli("eval", str(run))
     assert done.returncode == 0, done.stderr
     metrics = json.loads((run / "metrics.json").read_text())
     covered = metrics["frames_covered"]
@@ -154,43 +142,49 @@ def test_a_full_disk_mid_checkpoint_is_one_line_and_keeps_the_checkpoint(run, fa
 
 # ---- class 10: batch ----
 
-def test_batch_out_on_a_file_or_under_one_is_one_line(small_phantom, tmp_path, one_error_line):
+def test_batch_out_on_a_file_or_under_one_is_one_line(cli, small_phantom, tmp_path,
+                                                      one_error_line):
     existing = tmp_path / "file"
     existing.write_text("not a folder")
-    line = one_error_line(surgsplat("batch", str(small_phantom), "--out", str(existing),
-                                    "--iters", "2"))
+    line = one_error_line(cli("batch", str(small_phantom), "--out", str(existing),
+                              "--iters", "2"))
     assert line == f"error: {existing}: File exists"
-    line = one_error_line(surgsplat("batch", str(small_phantom), "--out",
-                                    str(existing / "batch"), "--iters", "2"))
+    line = one_error_line(cli("batch", str(small_phantom), "--out",
+                              str(existing / "batch"), "--iters", "2"))
     assert line == f"error: {existing / 'batch'}: Not a directory"
 
 
-def test_a_second_batch_into_one_folder_is_refused(small_phantom, tmp_path, one_error_line):
+def test_a_second_batch_into_one_folder_is_refused(cli, small_phantom, tmp_path,
+                                                   one_error_line):
     out = tmp_path / "batch"
-    with run_lock(out, create=True):  # as the first batch holds it
-        line = one_error_line(surgsplat("batch", str(small_phantom), "--out", str(out),
-                                        "--iters", "2"))
+    # as the first batch holds it; flock refuses any other open of the lock file, this
+    # process's own as another's
+    with run_lock(out, create=True):
+        line = one_error_line(cli("batch", str(small_phantom), "--out", str(out),
+                                  "--iters", "2"))
     assert f"{out}: in use by another surgsplat process (PID {os.getpid()})" in line
     assert sorted(path.name for path in out.iterdir()) == [".lock"]
 
 
-def test_batch_set_is_checked_as_train_checks_it(small_phantom, tmp_path, one_error_line):
-    line = one_error_line(surgsplat("batch", str(small_phantom), "--out", str(tmp_path / "b"),
-                                    "--iters", "2", "--set", "densify.every=0"))
+def test_batch_set_is_checked_as_train_checks_it(cli, small_phantom, tmp_path,
+                                                 one_error_line):
+    line = one_error_line(cli("batch", str(small_phantom), "--out", str(tmp_path / "b"),
+                              "--iters", "2", "--set", "densify.every=0"))
     assert "densify.every" in line
     assert not (tmp_path / "b").exists()
 
 
 @pytest.mark.slow
-def test_batch_with_a_failing_clip_prints_one_line_and_exits_1(small_phantom, tmp_path):
+def test_batch_with_a_failing_clip_prints_one_line_and_exits_1(cli, small_phantom, tmp_path):
     good = shutil.copytree(small_phantom, tmp_path / "clips" / "good")
     bad = shutil.copytree(small_phantom, tmp_path / "clips" / "bad")
     broken = bad / "images" / "000003.png"
     broken.write_bytes(broken.read_bytes()[:200])
     out = tmp_path / "batch"
-    done = surgsplat("batch", str(good), str(bad), "--out", str(out), "--iters", "2",
-                     "--num-cpus", "2", "--no-geometry", "--memory-gb", "0.5",
-                     "--set", "train.checkpoint_every=1", timeout=600)
+    done = cli("batch", str(good), str(bad), "--out", str(out), "--iters", "2",
+               "--num-cpus", "2", "--no-geometry", "--memory-gb", "0.5",
+               "--set", "train.checkpoint_every=1", timeout=600,
+               process=True)  # a Ray instance of its own, ended with the process
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stdout + done.stderr, done.stdout + done.stderr
     failed = [line for line in done.stdout.splitlines() if line.startswith(f"{bad}: failed")]

@@ -16,6 +16,8 @@ from surgsplat.train.trainer import CHECKPOINT
 
 ITERATIONS = 60
 
+pytestmark = pytest.mark.slow  # each trains on the phantom in a process of its own, then again
+
 
 def resume_to_the_end(run, small_phantom, cli, faults):
     """Continue a stopped run (or start it again when it stopped before its first checkpoint)

@@ -12,7 +12,6 @@ from surgsplat.data.scene import load_scene
 from surgsplat.errors import DataError, SurgsplatError
 
 from .conftest import HEIGHT, WIDTH
-from .test_importer import run_cli
 
 # A real calibrated endoscope pair has non-square pixels and an off-centre principal point.
 FX, FY, CX_CV, CY_CV = 43.9, 46.9, 50.5, 28.0  # OpenCV convention: pixel centres at integers
@@ -168,9 +167,9 @@ def test_inconsistent_camera_options(frames: Path, tmp_path: Path, config: Impor
         import_scene(frames, tmp_path / "s", config)
 
 
-def test_cli_fx_fy_cx_cy(frames: Path, tmp_path: Path):
-    result = run_cli("import", str(frames), "--out", str(tmp_path / "s"), "--fx", str(FX),
-                     "--fy", str(FY), "--cx", str(CX_CV), "--cy", str(CY_CV), "--no-fov-mask")
+def test_cli_fx_fy_cx_cy(frames: Path, tmp_path: Path, cli):
+    result = cli("import", str(frames), "--out", str(tmp_path / "s"), "--fx", str(FX),
+                 "--fy", str(FY), "--cx", str(CX_CV), "--cy", str(CY_CV), "--no-fov-mask")
     assert result.returncode == 0, result.stderr
     assert "fy 46.90" in result.stdout and "given: --fx, --fy" in result.stdout
     np.testing.assert_allclose(camera_of(tmp_path / "s"), (FX, FY, CX_CV + 0.5, CY_CV + 0.5),

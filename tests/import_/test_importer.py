@@ -1,8 +1,6 @@
 """`import_scene` and `surgsplat import`: video / frames + masks (+ stereo) to a loadable scene."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -139,20 +137,15 @@ def test_stereo_import_writes_depth_or_disparity(tmp_path: Path):
     assert not load_scene(out).has_depth
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
-                          capture_output=True, text=True, timeout=120)
-
-
 def test_cli_import_prints_summary_and_one_line_errors(video: Path, mask_folder: Path,
-                                                      tmp_path: Path):
-    result = run_cli("import", str(video), "--out", str(tmp_path / "s"), "--masks",
-                     str(mask_folder), "--stride", "2")
+                                                      tmp_path: Path, cli):
+    result = cli("import", str(video), "--out", str(tmp_path / "s"), "--masks",
+                 str(mask_folder), "--stride", "2")
     assert result.returncode == 0, result.stderr
     assert "scene summary" in result.stdout and "circle" in result.stdout
     assert len(load_scene(tmp_path / "s").frames) == 5
-    result = run_cli("import", str(video), "--out", str(tmp_path / "t"), "--tool-labels", "a,b",
-                     "--masks", str(mask_folder))
+    result = cli("import", str(video), "--out", str(tmp_path / "t"), "--tool-labels", "a,b",
+                 "--masks", str(mask_folder))
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "comma-separated integers" in result.stderr
 

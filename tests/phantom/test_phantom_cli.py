@@ -1,21 +1,14 @@
 """`surgsplat phantom`: writes a loadable scene and prints its summary; bad options are one line."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 from surgsplat.data.scene import load_scene
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "surgsplat.cli.main", *args],
-                          capture_output=True, text=True, timeout=120)
-
-
-def test_phantom_command_writes_scene(tmp_path: Path):
+def test_phantom_command_writes_scene(tmp_path: Path, cli):
     out = tmp_path / "scene"
-    result = run_cli("phantom", "--out", str(out), "--motion", "cutting", "--frames", "3",
-                     "--seed", "2")
+    result = cli("phantom", "--out", str(out), "--motion", "cutting", "--frames", "3",
+                 "--seed", "2")
     assert result.returncode == 0, result.stderr
     assert "scene summary" in result.stdout and "phantom written to" in result.stdout
     scene = load_scene(out)
@@ -23,17 +16,17 @@ def test_phantom_command_writes_scene(tmp_path: Path):
     assert scene.meta.extra["seed"] == 2
 
 
-def test_phantom_command_rejects_unknown_preset(tmp_path: Path):
-    result = run_cli("phantom", "--out", str(tmp_path / "x"), "--preset", "huge")
+def test_phantom_command_rejects_unknown_preset(tmp_path: Path, cli):
+    result = cli("phantom", "--out", str(tmp_path / "x"), "--preset", "huge")
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     assert "valid presets: small, full" in result.stderr
     assert not (tmp_path / "x").exists()
 
 
-def test_phantom_command_moving_camera(tmp_path: Path):
+def test_phantom_command_moving_camera(tmp_path: Path, cli):
     out = tmp_path / "moving"
-    result = run_cli("phantom", "--out", str(out), "--camera", "moving", "--frames", "3")
+    result = cli("phantom", "--out", str(out), "--camera", "moving", "--frames", "3")
     assert result.returncode == 0, result.stderr
     assert "moving, centre travels" in result.stdout
     scene = load_scene(out)

@@ -18,9 +18,10 @@ SMALL = PRESETS["small"]
 
 
 @pytest.fixture(scope="module")
-def phantom(tmp_path_factory) -> Path:
-    """The small pulling phantom, seed 0, generated once for this module."""
-    return generate_phantom(PhantomConfig(), tmp_path_factory.mktemp("phantom") / "scene")
+def phantom(small_phantom) -> Path:
+    """The small pulling phantom, seed 0 (PhantomConfig()): the session's, which these tests
+    only read."""
+    return small_phantom
 
 
 def gt(root: Path, folder: str, index: int, suffix: str) -> Path:

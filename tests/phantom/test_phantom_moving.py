@@ -24,9 +24,9 @@ FRAMES = 16
 
 
 @pytest.fixture(scope="module")
-def moving(tmp_path_factory) -> Path:
-    return generate_phantom(PhantomConfig(camera="moving"),
-                            tmp_path_factory.mktemp("moving") / "scene")
+def moving(moving_phantom) -> Path:
+    """PhantomConfig(camera="moving"): the session's phantom, which these tests only read."""
+    return moving_phantom
 
 
 @pytest.fixture(scope="module")

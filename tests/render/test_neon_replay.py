@@ -143,6 +143,9 @@ def cross_toolchain_missing() -> str | None:
     return None
 
 
+pytestmark = pytest.mark.slow  # a cross-build of the module and a replay under emulation
+
+
 @pytest.fixture(scope="module")
 def neon_module(tmp_path_factory) -> Path:
     """The NEON variant cross-compiled from CMakeLists.txt with the sysroot's Python headers."""

@@ -127,7 +127,13 @@ def test_every_variant_has_flags_in_cmakelists():
     assert set(variant_flags()) == set(native.ISAS)
 
 
-@pytest.mark.parametrize("isa", native.ISAS)
+def emulated_slow(isa: str):
+    """`isa` as a parameter, marked slow when this CPU cannot run it (then it runs emulated:
+    under qemu, or a kernel booted in Bochs, which takes minutes)."""
+    return pytest.param(isa, marks=pytest.mark.slow if native.isa_unavailable(isa) else ())
+
+
+@pytest.mark.parametrize("isa", [emulated_slow(isa) for isa in native.ISAS])
 def test_simd_operations_match_scalar_arithmetic(isa, tmp_path):
     binary = tmp_path / f"simd_check_{isa}"
     compile_prefix, run = build_and_run_command(isa, binary, tmp_path)

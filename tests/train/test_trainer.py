@@ -83,6 +83,7 @@ def test_ctrl_c_saves_a_checkpoint(small_phantom, tmp_path):
     assert state["iteration"] == 7
 
 
+@pytest.mark.slow  # end to end: 40 iterations and the full evaluation
 def test_evaluation_of_a_short_run(small_phantom, tmp_path):
     Trainer(small_config("deform3dgs", 40), load_scene(small_phantom), tmp_path / "run").fit()
     metrics = evaluate_run(load_trained_run(tmp_path / "run"), EvalOptions())
@@ -96,13 +97,11 @@ def test_evaluation_of_a_short_run(small_phantom, tmp_path):
     assert (metrics["lpips"] is None) == ("lpips_note" in metrics)
 
 
-def test_training_with_known_moving_poses(tmp_path):
+@pytest.mark.slow  # end to end: a phantom generated, 60 iterations, the full evaluation
+def test_training_with_known_moving_poses(moving_phantom, tmp_path):
     """The moving-camera phantom trains with each frame's camera, and its geometry is scored in
     the world frame: a run that used the cameras lands on the gt meshes."""
-    from surgsplat.data.phantom import PhantomConfig, generate_phantom
-
-    root = generate_phantom(PhantomConfig(preset="small", camera="moving"), tmp_path / "moving")
-    scene = load_scene(root)
+    scene = load_scene(moving_phantom)
     assert scene.has_moving_camera
     trainer = Trainer(small_config("deform3dgs", 60), scene, tmp_path / "run")
     before = frame_loss(trainer, 5)
