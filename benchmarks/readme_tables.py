@@ -89,6 +89,8 @@ def metric_format(key: str) -> str:
         return ".0f"
     if key in ("r_var", "reflectance_error", "shading_error"):
         return ".4f"
+    if key.startswith("collision_fraction"):
+        return ".1e"
     return ".2f"
 
 

@@ -187,12 +187,16 @@ def physiosplat() -> MethodConfig:
     34.5 dB, ARAP strain 0, depth_rmse_occluded 2.17 against 1.24 mm); a sweep in between
     remains to be measured at full length.
     The specular albedo starts at 0.01, not 0.1 (see SpecularConfig.init_albedo);
-    the lobe is shaded from a smoothed depth; no loss of a step moves the semantic logit, colour
-    or opacity of tissue hidden behind the tool (see ToolField.losses); the collision's tool
-    proxy is balls around the tool Gaussians, not their convex hull (see model.physics).
-    Full phantom, 3000 iterations, seed 0: psnr_tissue 39.13 dB before the last two, 39.84 with
-    the gate, 40.23 with both; collisions 952 -> 29; the tool-free render's hole remained
-    (psnr_occluded 12.8 -> 13.6 dB; issue 28)."""
+    the lobe is shaded from a smoothed depth; no loss of a step reaches, through the render,
+    tissue hidden behind the tool: not its semantic logit, colour or opacity, nor its position,
+    scales or rotation (see ToolField.losses); the collision's tool proxy is balls around the
+    tool Gaussians, not their convex hull (see model.physics).
+    Full phantom, 3000 iterations: psnr_tissue 39.13 dB (seed 0) before the gate and the balls,
+    39.84 with the gate on colour and opacity, 40.23 with the balls too (collisions 952 -> 29).
+    The tool-free render kept a tool-shaped hole (psnr_occluded 13.6 dB, depth_rmse_occluded
+    25.8 mm) until the gate covered position and shape: psnr_occluded 23.2 and 23.8 dB,
+    depth_rmse_occluded 1.03 and 1.06 mm, psnr_tissue 39.60 and 39.79 dB (seeds 0 and 1), still
+    about 5 dB below endogaussian's hidden tissue (issue 28)."""
     return MethodConfig(
         name="physiosplat",
         components={"deformation": HexPlaneConfig(volume_samples=512), "tool": ToolFieldConfig(),
