@@ -123,7 +123,9 @@ class ToolField(Component):
         self.register_buffer("unit", torch.ones(()))
         self.register_buffer("known", torch.zeros(frames, dtype=torch.bool))
         self.register_buffer("seen", torch.zeros(frames, dtype=torch.bool))
-        self.register_buffer("last_tissue_image", torch.zeros(0, 0, 3), persistent=False)
+        # [H, W, 3] the latest training observation of each pixel as tissue (densify_weights);
+        # saved, so that a resumed run densifies as the uninterrupted one does
+        self.register_buffer("last_tissue_image", torch.zeros(0, 0, 3))
         self._reference: tuple[Tensor, Tensor] | None = None  # canonical tool (means, colours)
         self._gate = GradientGate()  # of the latest render: what it rasterised, tool channel
         self._occlusion: tuple | None = None  # (render, occluded [N], pixels [N, 2]) of a step
@@ -252,6 +254,13 @@ class ToolField(Component):
             return rotation, translation * self.unit
         nearest = min(sides, key=lambda side: (abs(side - index), bool(self.seen[side])))
         return self.rotations[nearest], self.translations[nearest] * self.unit
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        # the image's size is the saved run's frames'; checkpoints written before it was saved
+        # start from no observation, as a new run does
+        key = prefix + "last_tissue_image"
+        self.last_tissue_image = torch.empty_like(state_dict.setdefault(key, torch.zeros(0, 0, 3)))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def before_render(self, gaussians: GaussianModel, when: FrameTime) -> None:
         """A new `GradientGate` for the render that follows, open until `losses` closes it."""

@@ -11,7 +11,7 @@ import torch
 from surgsplat.data.scene import load_scene
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.losses.photometric import photometric_loss
-from surgsplat.methods.registry import method_config
+from surgsplat.methods.registry import PRESETS, method_config
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import load_trained_run
@@ -48,12 +48,27 @@ def test_loss_falls(small_phantom, tmp_path, method):
                                         if weight["weight"] and weight["start"] * 60 <= 60}
 
 
-def test_resume_continues_exactly(small_phantom, tmp_path):
+def rendered_test_frame(trainer: Trainer) -> torch.Tensor:
+    frame = next(f for f in trainer.scene.frames if f.is_test)
+    with torch.no_grad():
+        return render_frame(trainer.model, frame.camera, FrameTime(frame.index, frame.time)).rgb
+
+
+@pytest.mark.parametrize("name", [name if name == "deform3dgs" else
+                                  pytest.param(name, marks=pytest.mark.slow)
+                                  for name in PRESETS])
+def test_resume_continues_exactly(name, small_phantom, tmp_path):
+    """A run stopped by Ctrl-C at iteration 15 and resumed from its checkpoint ends where the
+    same run without the stop ends (densification at 10, 20 and LumiState's second stage
+    straddle the stop): every parameter, buffer and component state within rtol 1e-3 /
+    atol 1e-4, the test render within 1e-4. After a reload float32 sums run in another order,
+    and Adam (eps 1e-15) turns that into differences up to ~5e-5 on a few entries whose
+    gradient is near zero; a resume that lost any state moves every entry by about a step."""
     scene = load_scene(small_phantom)
-    straight = Trainer(small_config("deform3dgs", 30), scene, tmp_path / "a")
+    straight = Trainer(small_config(name, 30), scene, tmp_path / "a")
     straight.fit()
 
-    first = Trainer(small_config("deform3dgs", 30), scene, tmp_path / "b")
+    first = Trainer(small_config(name, 30), scene, tmp_path / "b")
 
     def interrupt(stats):
         if stats.iteration == 15:
@@ -61,13 +76,17 @@ def test_resume_continues_exactly(small_phantom, tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         first.fit(interrupt)
-    resumed = Trainer(small_config("deform3dgs", 30), scene, tmp_path / "b")
-    resumed.load(tmp_path / "b" / CHECKPOINT)
+    resumed = Trainer(small_config(name, 30), scene, tmp_path / "b")
+    assert resumed.load(tmp_path / "b" / CHECKPOINT) is None
     assert resumed.iteration == 15
     resumed.fit()
-    for name, value in straight.model.gaussians.params.items():
-        torch.testing.assert_close(resumed.model.gaussians.params[name], value,
-                                   rtol=1e-4, atol=1e-5, msg=name)
+    expected, actual = straight.model.state_dict(), resumed.model.state_dict()
+    assert actual.keys() == expected.keys()
+    for key, value in expected.items():
+        torch.testing.assert_close(actual[key], value, rtol=1e-3, atol=1e-4,
+                                   msg=lambda text, key=key: f"{key}: {text}")
+    torch.testing.assert_close(rendered_test_frame(resumed), rendered_test_frame(straight),
+                               rtol=0, atol=1e-4)
 
 
 def test_ctrl_c_saves_a_checkpoint(small_phantom, tmp_path):
