@@ -60,10 +60,13 @@ def rendered_test_frame(trainer: Trainer) -> torch.Tensor:
 def test_resume_continues_exactly(name, small_phantom, tmp_path):
     """A run stopped by Ctrl-C at iteration 15 and resumed from its checkpoint ends where the
     same run without the stop ends (densification at 10, 20 and LumiState's second stage
-    straddle the stop): every parameter, buffer and component state within rtol 1e-3 /
-    atol 1e-4, the test render within 1e-4. After a reload float32 sums run in another order,
-    and Adam (eps 1e-15) turns that into differences up to ~5e-5 on a few entries whose
-    gradient is near zero; a resume that lost any state moves every entry by about a step."""
+    straddle the stop). After a reload, float32 sums (on 2 threads) run in another order, and
+    Adam (eps 1e-15) turns that into differences up to ~3e-4 on a few entries whose gradient
+    is near zero (3 in 98,304 of a HexPlane plane): so of every float tensor of the model's
+    state at most 1 entry in 1000 may lie outside rtol 1e-3 / atol 1e-4, none more than 1e-2
+    off; integer and boolean state is equal; the test render within 1e-3. A resume that lost
+    state moves far more (the unsaved tissue observation of the tool field: 3.5% of drawer's
+    scales, up to 1.5 off)."""
     scene = load_scene(small_phantom)
     straight = Trainer(small_config(name, 30), scene, tmp_path / "a")
     straight.fit()
@@ -83,10 +86,15 @@ def test_resume_continues_exactly(name, small_phantom, tmp_path):
     expected, actual = straight.model.state_dict(), resumed.model.state_dict()
     assert actual.keys() == expected.keys()
     for key, value in expected.items():
-        torch.testing.assert_close(actual[key], value, rtol=1e-3, atol=1e-4,
-                                   msg=lambda text, key=key: f"{key}: {text}")
+        assert actual[key].shape == value.shape, key
+        if not value.is_floating_point() or value.numel() == 0:
+            assert torch.equal(actual[key], value), key
+            continue
+        off = ~torch.isclose(actual[key], value, rtol=1e-3, atol=1e-4)
+        assert off.float().mean() <= 1e-3, f"{key}: {int(off.sum())} of {off.numel()} entries off"
+        assert float((actual[key] - value).abs().max()) <= 1e-2, key
     torch.testing.assert_close(rendered_test_frame(resumed), rendered_test_frame(straight),
-                               rtol=0, atol=1e-4)
+                               rtol=0, atol=1e-3)
 
 
 def test_ctrl_c_saves_a_checkpoint(small_phantom, tmp_path):
