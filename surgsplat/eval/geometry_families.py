@@ -100,8 +100,8 @@ class GaussianCentresFamily(GroundTruthMeshFamily):
 
     def score_against_mesh(self, view: FrameView) -> dict[str, float]:
         model = view.run.model
-        state = model.state_at(view.when)
-        means, opacities = state.means.detach(), state.opacities.detach()
+        state = view.state
+        means, opacities = state.means, state.opacities
         tissue = model.tissue_members()
         if tissue is not None:
             means, opacities = means[tissue], opacities[tissue]
@@ -131,13 +131,13 @@ class CollisionFamily(GroundTruthMeshFamily):
         motion, tissue = model.tool_motion(), model.tissue_members()
         if motion is None or tissue is None:
             return {}
-        state = model.state_at(view.when)
+        state = view.state
         proxy = motion.proxy(state, model.gaussians)
         if proxy is None:
             return {}
         truth = sample_surface(*view.gt_mesh, GEOMETRY_POINTS, seed=view.frame.index)
         return collision_fractions(proxy, {
-            "collision_fraction": state.means.detach()[tissue],
+            "collision_fraction": state.means[tissue],
             "collision_fraction_truth": torch.from_numpy(truth).to(state.means.dtype)},
             view.frame)
 

@@ -15,6 +15,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import torch
 from torch import Tensor
 
 from surgsplat.data.layout import frame_stem
@@ -22,6 +23,7 @@ from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.scene import Frame
 from surgsplat.export.articulation import articulate
 from surgsplat.model.component import FrameTime
+from surgsplat.model.state import GaussianState
 from surgsplat.render.render import RenderOutput
 from surgsplat.train.run import TrainedRun
 
@@ -62,6 +64,13 @@ class FrameView:
     def rgb(self) -> Tensor:
         """[H, W, 3] the rendered colour clamped to [0, 1]."""
         return self.render.rgb.clamp(0, 1)
+
+    @cached_property
+    def state(self) -> GaussianState:
+        """The Gaussians at the frame's time (every component applied, detached); computed once
+        for every family that needs them."""
+        with torch.no_grad():
+            return self.run.model.state_at(self.when)
 
     @cached_property
     def gt_mesh(self) -> tuple[np.ndarray, np.ndarray] | None:
