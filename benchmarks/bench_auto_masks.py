@@ -4,11 +4,13 @@
                                           [--train-iters N --seeds S --work DIR]
 
 The clip's frames that have labels are split in two consecutive halves: the first half
-(frames 561-596 of the shared sample) is where the segmenter's thresholds were chosen, the
+(frames 561-596 of the shared sample) is where the segmenter's parameters were chosen, the
 second half (597-632) is held out and only scored. Tool = classes 31 (grasper) and 32
 (L-hook). IoU, precision and recall of the tool class are pooled over the pixels of each split
-inside the field of view (label 50 = border is outside). Frames are segmented as one sequence,
-as the importer does, so the temporal averaging sees each frame's neighbours.
+inside the field of view (label 50 = border is outside); the IoU of every frame (inside the
+field of view), each split's lowest, and the segmenter's per-frame confidence are reported too.
+Frames are segmented as one sequence, as the importer does, so the temporal window sees each
+frame's neighbours; seconds per frame are those of that whole pass at the clip's size.
 
 With --train-iters, the labelled frames are also imported three times at half size (no masks,
 --auto-tool-masks, and the labels as masks), `deform3dgs` is trained for N iterations on the
@@ -74,10 +76,10 @@ def scores(tally: np.ndarray) -> dict:
 
 
 def overlay(image: np.ndarray, predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """BGR picture: green = both, red = predicted only, blue = missed."""
+    """BGR picture: green = found, red = missed, blue = false alarm."""
     picture = image[..., ::-1].copy()
-    for where, colour in ((predicted & truth, (0, 200, 0)), (predicted & ~truth, (0, 0, 255)),
-                          (~predicted & truth, (255, 80, 0))):
+    for where, colour in ((predicted & truth, (0, 200, 0)), (~predicted & truth, (0, 0, 255)),
+                          (predicted & ~truth, (255, 80, 0))):
         picture[where] = (0.45 * picture[where] + 0.55 * np.array(colour)).astype(np.uint8)
     return picture
 
@@ -91,23 +93,30 @@ def run(data: Path, config: AutoMaskConfig, overlays: Path | None) -> dict:
                for _, _, labels in rows]
     fov = estimate_fov(images).inside
     started = time.perf_counter()
-    masks = list(auto_tool_masks(images, fov, config))
+    results = list(auto_tool_masks(images, fov, config))
     seconds = (time.perf_counter() - started) / len(images)
     tallies = {"tuning": np.zeros(3, np.int64), "held_out": np.zeros(3, np.int64)}
-    for position, (mask, truth, border) in enumerate(zip(masks, truths, borders)):
+    per_frame = []
+    for position, (result, truth, border) in enumerate(zip(results, truths, borders)):
         split = "tuning" if position < half else "held_out"
-        tallies[split] += counts(mask, truth, ~border)
+        tally = counts(result.mask, truth, ~border)
+        tallies[split] += tally
+        per_frame.append({"frame": rows[position][0], "split": split,
+                          "iou": scores(tally)["iou"], "confidence": result.confidence})
         if overlays is not None and position % 6 == 0:
             overlays.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(overlays / f"frame_{rows[position][0]}_{split}.png"),
-                        overlay(images[position], mask, truth))
+                        overlay(images[position], result.mask, truth))
     numbers = [number for number, _, _ in rows]
     return {
         "data": str(data), "size": [images[0].shape[1], images[0].shape[0]],
         "splits": {"tuning": [numbers[0], numbers[half - 1]],
                    "held_out": [numbers[half], numbers[-1]]},
         "config": asdict(config),
-        **{split: scores(tally) for split, tally in tallies.items()},
+        **{split: {**scores(tally), "frame_iou_min": min(
+            row["iou"] for row in per_frame if row["split"] == split)}
+           for split, tally in tallies.items()},
+        "per_frame": per_frame,
         "seconds_per_frame": seconds,
     }
 
@@ -173,7 +182,11 @@ def main() -> None:
     config = AutoMaskConfig()
     for assignment in args.set:
         name, value = assignment.split("=")
-        setattr(config, name, type(getattr(config, name))(value))
+        *path, leaf = name.split(".")  # e.g. motion.preset
+        target = config
+        for part in path:
+            target = getattr(target, part)
+        setattr(target, leaf, type(getattr(target, leaf))(value))
     result = run(args.data, config, args.overlays)
     if args.train_iters:
         args.work.mkdir(parents=True, exist_ok=True)
@@ -186,7 +199,9 @@ def main() -> None:
     for split in ("tuning", "held_out"):
         row = result[split]
         print(f"{split:9s} frames {result['splits'][split]}: IoU {row['iou']:.3f}  "
-              f"precision {row['precision']:.3f}  recall {row['recall']:.3f}")
+              f"precision {row['precision']:.3f}  recall {row['recall']:.3f}  "
+              f"lowest frame IoU {row['frame_iou_min']:.3f}")
+    print(f"{1000 * result['seconds_per_frame']:.0f} ms per frame")
     if not args.set:
         print(f"results: {write_report('bench_auto_masks', result, args.out)}")
 

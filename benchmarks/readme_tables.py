@@ -145,11 +145,13 @@ def auto_masks_table(report: dict) -> str:
     the training comparison when the report has one."""
     lines = [f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
              f"{report['date'][:10]}, `{report['command']}`:", "",
-             "| frames | IoU | precision | recall | ms per frame |", "|---|---|---|---|---|"]
+             "| frames | IoU | lowest frame IoU | precision | recall | ms per frame |",
+             "|---|---|---|---|---|---|"]
     for split in ("tuning", "held_out"):
         first, last = report["splits"][split]
         row = report[split]
         lines.append(f"| {split.replace('_', '-')} {first}-{last} | {row['iou']:.3f} "
+                     f"| {cell(row, 'frame_iou_min', '.3f')} "
                      f"| {row['precision']:.3f} | {row['recall']:.3f} "
                      f"| {1000 * report['seconds_per_frame']:.0f} |")
     if "training" in report:

@@ -35,7 +35,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks
+from surgsplat.data.auto_tool_masks import (CONFIDENCE_MEANING, AutoMask, AutoMaskConfig,
+                                            auto_tool_masks)
 from surgsplat.data.calibration import read_calibration
 from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
 from surgsplat.data.frames_source import FrameSource, list_frame_files
@@ -377,11 +378,14 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
               _read_pairs(frames, right, plan.selected))
     inside = plan.fov.inside if plan.fov is not None else None
     automatic = learned_depth = itertools.repeat(None)
+    confidences: list[float] = []
     # The segmenters and the depth network look a few frames ahead (their temporal window or
     # batch); tee holds only those frames.
     if config.auto_tool_masks:
         fitted, ahead = itertools.tee(fitted)
-        automatic = auto_tool_masks((image for _, image, _ in ahead), inside, config.auto_masks)
+        automatic = _recording_confidence(
+            auto_tool_masks((image for _, image, _ in ahead), inside, config.auto_masks),
+            confidences)
     if plan.tool_model is not None:
         fitted, ahead = itertools.tee(fitted)
         automatic = model_tool_masks(
@@ -418,8 +422,17 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
             depth[depth > 65535 * depth_scale] = 0.0  # beyond the 16-bit range: unknown
         writer.add_frame(image, depth, tool)
         report("import", done, len(plan.selected))
-    meta.extra = _provenance(plan, config)
+    meta.extra = _provenance(plan, config, confidences)
     return writer.finish()
+
+
+def _recording_confidence(results: Iterator[AutoMask], confidences: list[float]
+                          ) -> Iterator[np.ndarray]:
+    """The masks (bool [H, W]) of the automatic segmenter's results, appending each frame's
+    confidence to `confidences`."""
+    for result in results:
+        confidences.append(result.confidence)
+        yield result.mask
 
 
 def _open_right(config: ImportConfig, frames: FrameSource) -> FrameSource | None:
@@ -534,8 +547,9 @@ def _read_pairs(frames: FrameSource, right: FrameSource | None,
         yield index, image, right_image
 
 
-def _provenance(plan: _Plan, config: ImportConfig) -> dict:
-    """scene.json `extra`: what was imported and how."""
+def _provenance(plan: _Plan, config: ImportConfig, confidences: list[float]) -> dict:
+    """scene.json `extra`: what was imported and how; `confidences` are the automatic
+    segmenter's per-frame confidences (empty without it)."""
     frames = plan.frames
     (source_h, source_w), (out_h, out_w) = plan.fit.source_size, plan.fit.out_size
     extra = {
@@ -560,7 +574,9 @@ def _provenance(plan: _Plan, config: ImportConfig) -> dict:
         }
     if config.auto_tool_masks:
         extra["masks"] = {"automatic": True, "segmenter": "surgsplat.data.auto_tool_masks",
-                          "config": config.auto_masks.describe()}
+                          "config": config.auto_masks.describe(),
+                          "confidence": [round(value, 4) for value in confidences],
+                          "confidence_meaning": CONFIDENCE_MEANING}
     if plan.tool_model is not None:
         extra["masks"] = {"automatic": True, "segmenter": "onnx",
                           "model": str(plan.tool_model.path.resolve()),

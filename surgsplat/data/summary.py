@@ -6,7 +6,9 @@ from dataclasses import dataclass
 
 import torch
 
+from surgsplat.data.layout import META_FILE
 from surgsplat.data.scene import Scene
+from surgsplat.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -33,6 +35,23 @@ class SceneSummary:
     tool_share_max: float
     fov_share: float  # share of pixels inside the field of view (1.0 without fov_mask.png)
     has_masks: bool
+    tool_mask_confidence: list[float] | None = None  # per frame, automatic masks only (0..1)
+
+
+def mask_confidence(scene: Scene) -> list[float] | None:
+    """Per-frame confidence of automatic tool masks from scene.json (extra.masks.confidence),
+    None when the scene has none; raises DataError unless it is one number in [0, 1] per
+    frame."""
+    masks = scene.meta.extra.get("masks")
+    if not isinstance(masks, dict) or "confidence" not in masks:
+        return None
+    values = masks["confidence"]
+    if not (isinstance(values, list) and len(values) == len(scene.frames) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1
+            for v in values)):
+        raise DataError(scene.root / META_FILE, f"extra.masks.confidence must list one number "
+                                                f"in [0, 1] per frame ({len(scene.frames)})")
+    return [float(v) for v in values]
 
 
 def summarise(scene: Scene) -> SceneSummary:
@@ -63,7 +82,8 @@ def summarise(scene: Scene) -> SceneSummary:
         test_indices=[f.index for f in scene.test_frames], depth_unit=scene.depth_unit,
         depth_min=depth_min, depth_max=depth_max, depth_valid_share=valid_share,
         tool_share_mean=float(tool_shares.mean()), tool_share_max=float(tool_shares.max()),
-        fov_share=float(scene.frames[0].fov.float().mean()), has_masks=scene.has_masks)
+        fov_share=float(scene.frames[0].fov.float().mean()), has_masks=scene.has_masks,
+        tool_mask_confidence=mask_confidence(scene))
 
 
 def format_summary(summary: SceneSummary) -> list[tuple[str, str]]:
@@ -91,4 +111,9 @@ def format_summary(summary: SceneSummary) -> list[tuple[str, str]]:
                              f"max {100 * summary.tool_share_max:.1f}%"))
     else:
         rows.append(("tool", "no tool masks"))
+    confidence = summary.tool_mask_confidence
+    if confidence is not None:
+        lowest = min(range(len(confidence)), key=confidence.__getitem__)
+        rows.append(("tool mask confidence", f"mean {sum(confidence) / len(confidence):.2f}, "
+                                             f"lowest {confidence[lowest]:.2f} (frame {lowest})"))
     return rows
