@@ -69,7 +69,8 @@ void backward(In<float> means, In<float> scales, In<float> quats, In<float> worl
               float lowpass, float fov_clamp, In<float> grad_means2d, In<float> grad_conics,
               In<float> grad_depths, In<float> grad_means_camera,
               In<float> grad_rotations_camera, Out<float> grad_means, Out<float> grad_scales,
-              Out<float> grad_quats) {
+              Out<float> grad_quats, Out<float> grad_world_to_camera,
+              Out<float> grad_intrinsics) {
     const size_t n = check_gaussians(means, scales, quats);
     const ProjectCamera camera = make_camera(world_to_camera, fx, fy, cx, cy, width, height,
                                              near, lowpass, fov_clamp);
@@ -81,16 +82,21 @@ void backward(In<float> means, In<float> scales, In<float> quats, In<float> worl
     expect_size(grad_means, 3 * n, "grad_means");
     expect_size(grad_scales, 3 * n, "grad_scales");
     expect_size(grad_quats, 4 * n, "grad_quats");
+    expect_size(grad_world_to_camera, 16, "grad_world_to_camera");
+    expect_size(grad_intrinsics, 4, "grad_intrinsics");
     nb::gil_scoped_release unlocked;
     surgsplat::project_backward(means.data(), scales.data(), quats.data(), n, camera,
                                 grad_means2d.data(), grad_conics.data(), grad_depths.data(),
                                 grad_means_camera.data(), grad_rotations_camera.data(),
-                                grad_means.data(), grad_scales.data(), grad_quats.data());
+                                grad_means.data(), grad_scales.data(), grad_quats.data(),
+                                grad_world_to_camera.data(), grad_intrinsics.data());
 }
 
 }  // namespace
 
 void bind_project(nb::module_& m) {
     m.def("project_forward", &forward, "EWA projection of 3D Gaussians (see project.py).");
-    m.def("project_backward", &backward, "Gradients of the projection's inputs.");
+    m.def("project_backward", &backward,
+          "Gradients of the projection's inputs: the Gaussians', world_to_camera [4, 4] and the "
+          "intrinsics (fx, fy, cx, cy).");
 }

@@ -25,12 +25,20 @@ void project_forward(const float* means, const float* scales, const float* quats
                      const ProjectCamera& camera, float* means2d, float* conics, float* depths,
                      int32_t* radii, float* means_camera, float* rotations_camera);
 
-// Gradients of a scalar loss with respect to means, scales and quats, given its gradients with
-// respect to every differentiable output of project_forward.
+// Gaussians per block of the camera gradients' reduction (see project_backward).
+constexpr int64_t kCameraBlock = 1024;
+
+// Gradients of a scalar loss with respect to means, scales and quats, and to the camera, given
+// its gradients with respect to every differentiable output of project_forward. The camera's:
+// grad_world_to_camera [4, 4] (rotation block and translation column, as free entries; the last
+// row 0) and grad_intrinsics [4] (fx, fy, cx, cy), each a sum over the Gaussians: in double over
+// blocks of kCameraBlock Gaussians, then over the blocks in order, so the same for any number of
+// threads.
 void project_backward(const float* means, const float* scales, const float* quats, int64_t n,
                       const ProjectCamera& camera, const float* grad_means2d,
                       const float* grad_conics, const float* grad_depths,
                       const float* grad_means_camera, const float* grad_rotations_camera,
-                      float* grad_means, float* grad_scales, float* grad_quats);
+                      float* grad_means, float* grad_scales, float* grad_quats,
+                      float* grad_world_to_camera, float* grad_intrinsics);
 
 }  // namespace surgsplat

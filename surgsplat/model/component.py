@@ -5,8 +5,10 @@ The Trainer, checkpoints, run loading and the densification strategy handle ever
 same way and never name one. A component declares:
 
 - its phase (`phase`, see `model.phases`: anchor, deformation, tool, exposure, illumination,
-  opacity, surface, shading, loss), from which the model orders the components: the order of a
-  method's config does not matter;
+  opacity, surface, shading, loss, camera), from which the model orders the components: the
+  order of a method's config does not matter;
+- the camera a frame is seen with (`camera`: e.g. a pose refined per frame), which
+  `SplatModel.camera_at` gives every render of a frame (training steps, evaluation, videos);
 - its network parameters as optimiser groups with a learning-rate schedule (`param_groups`);
 - its per-Gaussian attributes (`initial_attributes`, `attribute_lrs`): they live with the Gaussians
   in `GaussianModel.params`, so densification, pruning and checkpoints carry them generically;
@@ -204,6 +206,15 @@ class Component(nn.Module):
         any component's `transform`: bring the component's state up to date for `when` (e.g.
         extract a first mesh, anchor new Gaussians, or compute once what the render's
         transform and the step's losses share). The transforms that follow read that state."""
+
+    def camera(self, camera: Camera, when: FrameTime) -> Camera:
+        """The camera a render at `when` sees through, given `camera`, the one it was asked
+        with (the frame's imported camera, or the viewer's): e.g. the pose with a learnt
+        per-frame correction. Called by `SplatModel.camera_at`, in phase order, in the
+        render's gradient mode, so the returned camera may carry gradients to the component's
+        parameters (the projection differentiates the pose and K). Pure, like `transform`.
+        The default returns `camera` itself."""
+        return camera
 
     def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
         """Called without gradients after every training step (`iteration`, from 1), once the

@@ -66,11 +66,20 @@ class SplatModel(nn.Module):
             state = component.transform(state, self.gaussians, when)
         return state
 
+    def camera_at(self, camera: Camera, when: FrameTime) -> Camera:
+        """The camera a frame at `when` is seen with: `camera` through every component's
+        `camera` hook, in phase order (the camera itself when no component changes it)."""
+        for component in self.components.values():
+            camera = component.camera(camera, when)
+        return camera
+
     def render(self, camera: Camera, when: FrameTime, background: Tensor | None = None,
                absgrad: Tensor | None = None) -> tuple[RenderOutput, GaussianState]:
         """The view of `camera` at `when`, with every component's channels and derived maps,
         and the Gaussians that were rendered (after every component's `before_render`; the
-        rasteriser receives them through every component's `rasterised_state`)."""
+        rasteriser receives them through every component's `rasterised_state`). `camera` is
+        rendered as given: a frame's camera goes through `camera_at` first (`render_frame` and
+        the Trainer do so)."""
         self.before_render(when)
         state = self.state_at(when)
         channels: dict[str, Tensor] = {}
@@ -211,5 +220,6 @@ def _product(factors) -> Tensor | None:
 @torch.no_grad()
 def render_frame(model: SplatModel, camera: Camera, when: FrameTime,
                  background: Tensor | None = None) -> RenderOutput:
-    """Render the model at `when` without gradients, e.g. for evaluation and videos."""
-    return model.render(camera, when, background)[0]
+    """Render the model at `when` without gradients, e.g. for evaluation and videos, seen with
+    `camera` as the components change it (`SplatModel.camera_at`, e.g. a refined pose)."""
+    return model.render(model.camera_at(camera, when), when, background)[0]

@@ -73,6 +73,7 @@ from surgsplat.model.component import (Component, ComponentConfig, FrameTime, Pa
                                        RenderContext, SceneInfo, SetupContext)
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
+from surgsplat.model.timeline import interpolate_in_time
 from surgsplat.render.sh import SH_C0, sh_colour
 
 MAP_MULTIPLE = 2 ** (LEVELS - 1)
@@ -408,16 +409,3 @@ class LumiState(Component):
             terms["illumination_transfer"] = illumination_transfer_loss(
                 context.output.extras["gain"], illumination, context.output.alpha, frame.tissue)
         return terms
-
-
-def interpolate_in_time(values: Tensor, times: Tensor, t: float) -> Tensor:
-    """Eq. 5: values [T, ...] known at increasing times [T] -> the value at t, linear between
-    the two nearest times and held constant beyond the first and last."""
-    if values.shape[0] == 1 or t <= float(times[0]):
-        return values[0]
-    if t >= float(times[-1]):
-        return values[-1]
-    right = int(torch.searchsorted(times, torch.tensor([t], dtype=times.dtype))[0])
-    left = right - 1
-    weight = (t - float(times[left])) / float(times[right] - times[left])
-    return (1.0 - weight) * values[left] + weight * values[right]

@@ -44,6 +44,9 @@ class Phase(StrEnum):
     """Adds light to the rendered colour from the rendered surface (the specular lobe)."""
     LOSS = "loss"
     """Leaves the Gaussians and the render as they are: loss terms, metrics, capabilities."""
+    CAMERA = "camera"
+    """Changes the camera a frame is seen with (`Component.camera`, per-frame pose refinement),
+    not the Gaussians: its place among the phases changes no render."""
 
 
 ORDER = tuple(Phase)

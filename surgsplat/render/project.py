@@ -1,8 +1,10 @@
 """Projection of 3D Gaussians to screen-space ellipses (EWA splatting): one contract, two backends.
 
-`native`: the C++/OpenMP kernel in csrc/project (float32, fixed camera), forward and backward
-written out per Gaussian. `reference`: PyTorch with autograd (any dtype, differentiable camera).
-`auto` picks native for float32 CPU inputs when it is built and the camera needs no gradient.
+`native`: the C++/OpenMP kernel in csrc/project (float32 Gaussians), forward and backward
+written out per Gaussian, with the camera's gradients (world_to_camera's rotation block and
+translation, K's fx, fy, cx, cy) summed over the Gaussians in a fixed order. `reference`: PyTorch
+with autograd (any dtype). Both are differentiable in the Gaussians and the camera; `auto` picks
+native for float32 CPU Gaussians when it is built.
 At 100k Gaussians the reference's many small batched operations cost about as much as the
 rasterizer itself on a 2-core CPU; the kernel takes a few milliseconds.
 
@@ -51,15 +53,14 @@ def project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int,
 
     The 2D covariance is J W Sigma W^T J^T + lowpass * I (EWA with a `lowpass` pixel dilation);
     Gaussians with depth below `near`, a degenerate covariance, or a 3-sigma box entirely outside
-    the image get radius 0.
+    the image get radius 0. Gradients reach the Gaussians, K (fx, fy, cx, cy) and
+    world_to_camera (its rotation block and translation, as free entries: a pose correction
+    keeps it rigid, see surgsplat.model.camera_refine).
     """
     if world_to_camera is None:
         world_to_camera = torch.eye(4, dtype=means.dtype)
-    camera_fixed = not (K.requires_grad or world_to_camera.requires_grad)
-    if backend == "native" and not camera_fixed:
-        raise ValueError("project: the native backend takes a camera without gradients")
     # The camera is read as float32 numbers, whatever its dtype: only the Gaussians decide.
-    if camera_fixed and resolve_backend("project", backend, [means, scales, quats]) == "native":
+    if resolve_backend("project", backend, [means, scales, quats]) == "native":
         return _native_project(means, scales, quats, K, width, height, world_to_camera, near,
                                lowpass)
     return project_reference(means, scales, quats, K, width, height, world_to_camera, near,
@@ -115,18 +116,23 @@ def project_reference(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, w
 
 
 class _NativeProject(torch.autograd.Function):
-    """Autograd wrapper of the native projection kernels; the camera is a constant."""
+    """Autograd wrapper of the native projection kernels: gradients of the Gaussians and of the
+    camera, world_to_camera [4, 4] and K [3, 3] (its fx, fy, cx, cy entries)."""
 
     @staticmethod
-    def forward(ctx, means, scales, quats, camera_args):
+    def forward(ctx, means, scales, quats, world_to_camera, K, settings):
         native = native_module()
         inputs = [t.detach().contiguous() for t in (means, scales, quats)]
+        fx, fy, cx, cy = (float(K[i, j]) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)))
+        camera_args = (world_to_camera.detach().to(torch.float32).contiguous().numpy(),
+                       fx, fy, cx, cy, *settings, FOV_CLAMP)
         n = means.shape[0]
         outputs = [torch.empty(n, 2), torch.empty(n, 3), torch.empty(n),
                    torch.empty(n, dtype=torch.int32), torch.empty(n, 3), torch.empty(n, 3, 3)]
         native.project_forward(*(t.numpy() for t in inputs), *camera_args,
                                *(t.numpy() for t in outputs))
         ctx.camera_args = camera_args
+        ctx.camera_dtypes = (world_to_camera.dtype, K.dtype)
         ctx.save_for_backward(*inputs)
         ctx.mark_non_differentiable(outputs[3])
         return tuple(outputs)
@@ -141,19 +147,23 @@ class _NativeProject(torch.autograd.Function):
                     dense_grad(grad_depths, (n,)), dense_grad(grad_means_camera, (n, 3)),
                     dense_grad(grad_rotations_camera, (n, 3, 3))]
         grads = [torch.empty_like(means), torch.empty_like(scales), torch.empty_like(quats)]
+        grad_pose, grad_intrinsics = torch.empty(4, 4), torch.empty(4)
         native.project_backward(means.numpy(), scales.numpy(), quats.numpy(), *ctx.camera_args,
-                                *(g.numpy() for g in upstream), *(g.numpy() for g in grads))
-        return (*grads, None)
+                                *(g.numpy() for g in upstream), *(g.numpy() for g in grads),
+                                grad_pose.numpy(), grad_intrinsics.numpy())
+        pose_dtype, K_dtype = ctx.camera_dtypes
+        grad_K = None
+        if ctx.needs_input_grad[4]:
+            grad_K = torch.zeros(3, 3, dtype=K_dtype)
+            grad_K[0, 0], grad_K[1, 1], grad_K[0, 2], grad_K[1, 2] = grad_intrinsics
+        grad_pose = grad_pose.to(pose_dtype) if ctx.needs_input_grad[3] else None
+        return (*grads, grad_pose, grad_K, None)
 
 
 def _native_project(means: Tensor, scales: Tensor, quats: Tensor, K: Tensor, width: int,
                     height: int, world_to_camera: Tensor, near: float,
                     lowpass: float) -> Projection:
-    K = K.detach().double()
-    camera_args = (world_to_camera.detach().to(torch.float32).contiguous().numpy(),
-                   float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                   width, height, near, lowpass, FOV_CLAMP)
     means2d, conics, depths, radii, means_camera, rotations_camera = _NativeProject.apply(
-        means, scales, quats, camera_args)
+        means, scales, quats, world_to_camera, K, (width, height, near, lowpass))
     return Projection(means2d=means2d, conics=conics, depths=depths, radii=radii,
                       means_camera=means_camera, rotations_camera=rotations_camera)

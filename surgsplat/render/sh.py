@@ -76,37 +76,37 @@ def sh_colour(degree: int, coeffs: Tensor, means: Tensor, world_to_camera: Tenso
     [N, 3], seen from the camera world_to_camera [4, 4] (None: at the origin):
     eval_sh(degree, coeffs, view_directions(means, world_to_camera)).
 
-    backend "native": the fused kernel (float32 CPU tensors, a camera without gradient);
-    "reference": PyTorch; "auto": native when it can run the inputs.
+    backend "native": the fused kernel (float32 CPU tensors); "reference": PyTorch; "auto":
+    native when it can run the inputs. Both are differentiable in the coefficients, the means
+    and the camera (through its centre).
     """
     _check_degree(degree, coeffs)
-    camera_fixed = world_to_camera is None or not world_to_camera.requires_grad
-    if backend == "native" and not camera_fixed:
-        raise ValueError("sh_colour: the native backend takes a camera without gradient")
-    if camera_fixed and resolve_backend("sh", backend, [coeffs, means]) == "native":
-        centre = camera_centre(world_to_camera, torch.float32).contiguous()
+    if resolve_backend("sh", backend, [coeffs, means]) == "native":
+        centre = camera_centre(world_to_camera, torch.float32)
         return _NativeSh.apply(coeffs, means, centre, degree)
     return eval_sh(degree, coeffs, view_directions(means, world_to_camera))
 
 
 class _NativeSh(torch.autograd.Function):
-    """Autograd wrapper of the native kernels; the camera centre and degree are constants."""
+    """Autograd wrapper of the native kernels; the degree is a constant. The colour depends on
+    a mean and the camera centre [3] through their difference only, so the centre's gradient is
+    minus the sum of the means' (the direction's part of them)."""
 
     @staticmethod
     def forward(ctx, coeffs: Tensor, means: Tensor, centre: Tensor, degree: int) -> Tensor:
-        inputs = [x.detach().contiguous() for x in (coeffs, means)]
+        inputs = [x.detach().contiguous() for x in (coeffs, means, centre)]
         rgb = means.new_empty(means.shape[0], 3)
-        native_module().sh_forward(*(x.numpy() for x in inputs), centre.numpy(), degree,
-                                   rgb.numpy())
-        ctx.save_for_backward(*inputs, centre)
+        native_module().sh_forward(*(x.numpy() for x in inputs), degree, rgb.numpy())
+        ctx.save_for_backward(*inputs)
         ctx.degree = degree
         return rgb
 
     @staticmethod
-    def backward(ctx, grad_rgb: Tensor) -> tuple[Tensor, Tensor, None, None]:
+    def backward(ctx, grad_rgb: Tensor) -> tuple[Tensor, Tensor, Tensor | None, None]:
         coeffs, means, centre = ctx.saved_tensors
         grad_coeffs, grad_means = torch.empty_like(coeffs), torch.empty_like(means)
         native_module().sh_backward(coeffs.numpy(), means.numpy(), centre.numpy(), ctx.degree,
                                     dense_grad(grad_rgb, (means.shape[0], 3)).numpy(),
                                     grad_coeffs.numpy(), grad_means.numpy())
-        return grad_coeffs, grad_means, None, None
+        grad_centre = -grad_means.sum(dim=0) if ctx.needs_input_grad[2] else None
+        return grad_coeffs, grad_means, grad_centre, None

@@ -245,8 +245,8 @@ class Trainer:
         self.iteration += 1
         self._update_learning_rates()
         frame = self._next_frame()
-        camera = frame.camera
         when = FrameTime(frame.index, frame.time)
+        camera = self.model.camera_at(frame.camera, when)
         absgrad = torch.zeros(self.model.gaussians.num_gaussians)
         output, state = self.model.render(camera, when, self.background, absgrad=absgrad)
         context = RenderContext(frame=frame, when=when, camera=camera, output=output,

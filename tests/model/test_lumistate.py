@@ -13,9 +13,9 @@ from surgsplat.losses.retinex import (bright_channel_loss, illumination_transfer
 from surgsplat.methods.registry import method_config
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
-from surgsplat.model.lumistate import (LumiState, LumiStateConfig, grid_corners,
-                                      interpolate_in_time)
+from surgsplat.model.lumistate import LumiState, LumiStateConfig, grid_corners
 from surgsplat.model.state import GaussianState
+from surgsplat.model.timeline import interpolate_in_time
 from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import Trainer
 
