@@ -11,6 +11,9 @@ the left image's shading depth is compared with the structured-light ground trut
 depth as 1 / disparity (focal x baseline is one constant, removed by the alignment), with the
 importer's defaults (gamma 2.2, 70 degree field of view assumed).
 
+The SCARED part also times the prior on its left image resized to 854x480 (`seconds_per_frame`
+wall-clock and `cpu_seconds_per_frame`, medians of TIMING_REPEATS runs after one warm-up run).
+
 Scores: `rel_clip` = mean |s d - d_true| / d_true with one scale s (median ratio) for the whole
 clip, the quantity the prior promises; `rel_frame` with a scale per frame; Spearman rank
 correlation; and, as a floor, `rel_constant`: the same error of a constant depth (the median).
@@ -28,6 +31,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import cv2
@@ -48,6 +52,10 @@ DEFAULT_SCARED = ROOT.parent / "shared" / "data" / "scared-stereo-sample"
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
 SPEARMAN_SAMPLES = 200_000
 """Pixels (seeded random subset) over which the rank correlation is computed."""
+TIMING_SIZE = (854, 480)
+"""Frame size (width, height) at which seconds_per_frame is measured."""
+TIMING_REPEATS = 3
+"""Timed runs of the prior (after one warm-up run) whose median is seconds_per_frame."""
 GEOMETRY = ("psnr_tissue", "chamfer_mm", "p2s_median_mm", "normal_error_deg_median")
 """Metrics of the training comparison (not depth_rmse_mm: eval takes it against the scene's
 depth maps, which here are the prior itself or absent)."""
@@ -115,8 +123,29 @@ def phantom_depth(phantom: Path, work: Path, median: float, pictures: Path | Non
             **depth_scores(estimates, truths)}
 
 
+def assumed_intrinsics(width: int, height: int) -> Intrinsics:
+    """The importer's default camera: a 70 degree horizontal field of view, centred."""
+    return Intrinsics.centred(width / 2 / np.tan(np.radians(70.0) / 2), width, height)
+
+
+def seconds_per_frame(image: np.ndarray, config: ShadingDepthConfig) -> dict:
+    """Median wall-clock and CPU seconds (all threads of this process) of the prior on `image`
+    resized to TIMING_SIZE; CPU seconds tell the cost apart from other load on the machine."""
+    frame = cv2.resize(image, TIMING_SIZE, interpolation=cv2.INTER_AREA)
+    intrinsics = assumed_intrinsics(*TIMING_SIZE)
+    wall, cpu = [], []
+    for _ in range(TIMING_REPEATS + 1):
+        start, start_cpu = time.perf_counter(), time.process_time()
+        shading_depth(frame, intrinsics, None, config)
+        wall.append(time.perf_counter() - start)
+        cpu.append(time.process_time() - start_cpu)
+    return {"seconds_per_frame": float(np.median(wall[1:])),
+            "cpu_seconds_per_frame": float(np.median(cpu[1:])), "timing_size": list(TIMING_SIZE)}
+
+
 def scared_depth(data: Path, pictures: Path | None) -> dict:
-    """Shading depth of each left image against 1 / ground-truth disparity."""
+    """Shading depth of each left image against 1 / ground-truth disparity, and the prior's
+    seconds per frame at TIMING_SIZE."""
     lefts = list_files(data / "left", IMAGE_SUFFIXES)
     truths = list_files(data / "disparity", (".tif", ".tiff"))
     occlusions = list_files(data / "occlusion", (".png",))
@@ -125,15 +154,14 @@ def scared_depth(data: Path, pictures: Path | None) -> dict:
     for left_path, truth_path, occlusion_path in zip(lefts, truths, occlusions):
         image = read_image(left_path)
         height, width = image.shape[:2]
-        focal = width / 2 / np.tan(np.radians(70.0) / 2)
-        intrinsics = Intrinsics(focal, focal, width / 2, height / 2)
-        estimates.append(shading_depth(image, intrinsics, None, config))
+        estimates.append(shading_depth(image, assumed_intrinsics(width, height), None, config))
         disparity = read_ground_truth(truth_path, occlusion_path)
         depths.append(np.where(disparity > 0, 1.0 / np.maximum(disparity, 1e-6), 0.0))
         if pictures is not None:
             save_pictures(pictures / f"scared_{left_path.stem}.png", image, estimates[-1],
                           depths[-1])
-    return {"pairs": len(lefts), "config": config.describe(), **depth_scores(estimates, depths)}
+    return {"pairs": len(lefts), "config": config.describe(),
+            **seconds_per_frame(image, config), **depth_scores(estimates, depths)}
 
 
 def without_depth(phantom: Path, folder: Path) -> Path:
@@ -218,8 +246,9 @@ def main() -> None:
     median = float(np.median(np.concatenate([t[t > 0] for t in truths])))
     result = {"scared": scared_depth(args.scared, args.pictures)}
     print(f"SCARED: rel_clip {result['scared']['rel_clip']:.3f} (constant depth "
-          f"{result['scared']['rel_constant']:.3f}), Spearman {result['scared']['spearman']:.3f}",
-          flush=True)
+          f"{result['scared']['rel_constant']:.3f}), Spearman {result['scared']['spearman']:.3f}, "
+          f"{result['scared']['seconds_per_frame']:.2f} s "
+          f"({result['scared']['cpu_seconds_per_frame']:.2f} s CPU) per 854x480 frame", flush=True)
     result["phantom"] = phantom_depth(phantom, args.work, median, args.pictures)
     result["phantom"]["median_depth_mm"] = median
     print(f"phantom: rel_clip {result['phantom']['rel_clip']:.3f} (constant depth "

@@ -137,9 +137,13 @@ def import_command(
         help="Find the circular field of view (black border) and write it to fov_mask.png, "
              "apart from the tool masks.")] = True,
     depth: Annotated[str, typer.Option(
-        help="Monocular depth prior: none, shading (relative depth from the light at the "
-             "camera, I ~ albedo cos / r^2), or MODEL.onnx, a depth network giving relative "
-             "inverse depth (or depth, --depth-model-output). " + CONTRACT + " Depth is 1 / "
+        help="Monocular depth prior: none (the default), shading (relative depth from the light "
+             "at the camera, I ~ albedo cos / r^2, by a near-light shape-from-shading fit; weak "
+             "on real frames: on the real SCARED pair its rank correlation with true depth is "
+             "far below 0.5 and its error no better than a constant depth, as albedo changes, "
+             "sheen and the light's fall-off read as depth; see bench_shading_depth), or "
+             "MODEL.onnx, a depth network giving relative inverse depth (or depth, "
+             "--depth-model-output). " + CONTRACT + " Depth is 1 / "
              "output with its shift taken as 0, unknown where the output is not positive. "
              "Shading and model depth have one unknown scale: every frame's median depth is set "
              "to --shading-median-depth or --depth-model-median-depth; train with "
