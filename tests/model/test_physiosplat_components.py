@@ -346,8 +346,10 @@ def test_no_loss_through_the_render_reaches_hidden_tissue():
     against a dark tool reach the tool's colour, opacity, position, scale and rotation, but
     not the hidden tissue's (exactly 0: through the tool's residual transmittance they would
     paint the tissue in the tool's colours and move it out from behind the tool); a loss on
-    the state itself (as the biomechanical energies are) still moves the hidden tissue; with
-    the tool moved aside, the tissue's render gradients are back."""
+    the state itself (as the biomechanical energies are) still moves the hidden tissue. With
+    the tool moved aside but the frame's mask still marking tool there (a rendered tool
+    thinner than the frame's), the mask loss still must not reach the tissue (it would fade
+    and move it away); once the frame shows tissue there, its render gradients are back."""
     gaussians, field, model, camera, frame = _tool_before_tissue(0.9)
     with torch.no_grad():  # anisotropic and turned, so that rotations have a gradient
         gaussians.params["log_scales"].copy_(torch.tensor([[3.0, 2.0, 1.0]]).log())
@@ -355,12 +357,12 @@ def test_no_loss_through_the_render_reaches_hidden_tissue():
     when = FrameTime(0, 0.0)
     names = ("sh_dc", "opacity_logits", "means", "log_scales", "quats")
 
-    def gradients(state_weight: float = 0.0) -> dict[str, Tensor]:
-        """|gradient| per Gaussian [2] of each parameter in `names`."""
+    def gradients(state_weight: float = 0.0, seen: Frame = frame) -> dict[str, Tensor]:
+        """|gradient| per Gaussian [2] of each parameter in `names`, against frame `seen`."""
         for parameter in gaussians.params.values():
             parameter.grad = None
         output, state = model.render(camera, when)
-        context = RenderContext(frame=frame, when=when, camera=camera, output=output,
+        context = RenderContext(frame=seen, when=when, camera=camera, output=output,
                                 state=state, gaussians=gaussians, iteration=1)
         loss = field.losses(context, frozenset({"mask"}))["mask"] + output.rgb.abs().mean()
         (loss + state_weight * state.means.sum()).backward()
@@ -374,7 +376,10 @@ def test_no_loss_through_the_render_reaches_hidden_tissue():
     assert gradients(state_weight=1.0)["means"][0] > 0
     with torch.no_grad():
         field.translations[0, 0] = 30.0  # the tool leaves the view
-    visible = gradients()
+    on_tool_pixels = gradients()  # the frame's mask still says tool there
+    for name in names:
+        assert on_tool_pixels[name][0] == 0, name
+    visible = gradients(seen=frame.with_tool(torch.zeros_like(frame.tool)))  # tissue shown
     for name in names:
         assert visible[name][0] > 0, name
 
