@@ -16,7 +16,7 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python $(NATIVE_SOURCES)
 	$(BIN)/python -m pip install --quiet "scikit-build-core>=0.10" "nanobind>=2.0" "torch==2.13.0"
-	$(BIN)/python -m pip install --quiet --no-build-isolation -e ".[test,report,viewer,mesh,batch,sim,onnx]"
+	$(BIN)/python -m pip install --quiet --no-build-isolation -e ".[test,report,viewer,mesh,batch,sim,onnx,sfm]"
 	touch $(STAMP)
 
 demo: $(STAMP)

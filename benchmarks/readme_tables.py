@@ -3,7 +3,7 @@ benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of README.md, for the
 benchmarks bench_render, bench_train, bench_densify_split, bench_threads, bench_outputs,
 bench_auto_masks, bench_shading_depth, bench_batch, bench_long_clip, bench_articulation,
-bench_faults and bench_onnx_models, and
+bench_faults, bench_onnx_models and bench_poses, and
 for every suite of bench_methods whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
 hand.
 
@@ -189,6 +189,50 @@ def shading_depth_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def poses_table(report: dict) -> str:
+    """Markdown for one bench_poses report: trajectory errors of SfM on the moving phantom
+    against both truths beside the static camera's, then registration on CholecSeg8k."""
+    phantom = report["phantom"]
+    sfm = phantom["sfm"]
+    width, height = phantom["size_wh"]
+    lines = [f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
+             f"{report['date'][:10]}, `{report['command']}`:", "",
+             f"| moving phantom ({phantom['preset']}, {phantom['frames']} frames, {width}x"
+             f"{height}) | ATE mm | rotation mean / max deg | RPE mm | RPE deg |",
+             "|---|---|---|---|---|"]
+    for name, label in (("against_tissue", "SfM vs camera relative to the tissue"),
+                        ("against_world", "SfM vs world poses (tissue breathes)")):
+        row = phantom[name]
+        lines.append(f"| {label} | {row['ate_mm']:.3f} | {row['rotation_mean_deg']:.3f} / "
+                     f"{row['rotation_max_deg']:.3f} | {row['rpe_mm']:.3f} "
+                     f"| {row['rpe_rotation_deg']:.3f} |")
+    static = phantom["static_reference"]["against_tissue"]
+    lines.append(f"| static camera (reference) vs tissue | {static['ate_mm']:.3f} "
+                 f"| {static['rotation_mean_deg']:.3f} / {static['rotation_max_deg']:.3f} | | |")
+    focal = phantom.get("focal_refinement")
+    if focal is not None:
+        row = focal["against_tissue"]
+        lines.append(f"| SfM, focal assumed ({focal['assumed_px']:.1f} px) and refined to "
+                     f"{focal['refined_px']:.1f} (true {focal['true_px']:.1f}), vs tissue "
+                     f"| {row['ate_mm']:.3f} | {row['rotation_mean_deg']:.3f} / "
+                     f"{row['rotation_max_deg']:.3f} | {row['rpe_mm']:.3f} "
+                     f"| {row['rpe_rotation_deg']:.3f} |")
+    lines += ["", "| data | registered | interpolated | reprojection px | sparse points "
+                  "| import s (CPU s) | SfM s: features / matching / mapping | static import s |",
+              "|---|---|---|---|---|---|---|---|"]
+    for name, case in (("phantom", phantom), ("CholecSeg8k clip", report.get("cholecseg8k"))):
+        if case is None:
+            continue
+        facts, stages = case["sfm"], case["sfm"]["stage_seconds"]
+        lines.append(f"| {name} | {facts['registered']} of {facts['frames']} "
+                     f"| {len(facts['interpolated'])} | {facts['reprojection_error_px']:.2f} "
+                     f"| {facts['sparse_points']} | {case['seconds']:.1f} "
+                     f"({case['cpu_seconds']:.1f}) | {stages['features']:.1f} / "
+                     f"{stages['matching']:.1f} / {stages['mapping']:.1f} "
+                     f"| {case['static_reference']['seconds']:.1f} |")
+    return "\n".join(lines)
+
+
 def long_clip_table(report: dict) -> str:
     """Markdown for one bench_long_clip report: one row per clip length, steps per second also
     as a ratio to the shortest clip's."""
@@ -347,7 +391,8 @@ RENDERERS = {"bench_render": render_table, "bench_train": train_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
              "bench_shading_depth": shading_depth_table, "bench_batch": methods_table,
              "bench_long_clip": long_clip_table, "bench_articulation": articulation_table,
-             "bench_faults": faults_table, "bench_onnx_models": onnx_models_table}
+             "bench_faults": faults_table, "bench_onnx_models": onnx_models_table,
+             "bench_poses": poses_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A README region of one bench_methods suite, e.g. bench_methods_endoplanar."""
 

@@ -16,6 +16,7 @@ from surgsplat.data.layout import META_FILE, SceneMeta
 from surgsplat.data.learned_priors import (DEPTH_OUTPUTS, TOOL_OUTPUTS, DepthNetworkConfig,
                                            ToolSegmenterConfig)
 from surgsplat.data.onnx_models import IMAGENET_MEAN, IMAGENET_STD, ModelInput
+from surgsplat.data.sfm_poses import INSTALL_HINT, SfmConfig
 from surgsplat.data.shading_depth import ShadingDepthConfig
 from surgsplat.data.stereo import SGBM_MODES, StereoConfig
 from surgsplat.data.tool_masks import MASK_MATCHES
@@ -204,6 +205,27 @@ def import_command(
     resize: Annotated[str | None, typer.Option(help="Output size WIDTHxHEIGHT, same aspect "
                                                     "ratio, e.g. 640x360.")] = None,
     scale: Annotated[float | None, typer.Option(help="Output size as a factor, e.g. 0.5.")] = None,
+    poses: Annotated[str, typer.Option(
+        help="Camera poses: static (one fixed camera) or sfm (each frame's camera from "
+             "structure from motion with COLMAP on the tissue pixels: the tool masks and the "
+             "outside of the field of view are excluded; needs " + INSTALL_HINT + "). SfM "
+             "scale: from stereo depth with --right, else the sparse points' median depth is "
+             "--sfm-median-depth. Frames that fail to register get interpolated poses, listed "
+             "in scene.json and by `surgsplat info`.")] = "static",
+    sfm_max_image_size: Annotated[int, typer.Option(
+        help="SfM: longer side (pixels) of the frames as SIFT sees them.")
+    ] = SfmConfig.max_image_size,
+    sfm_max_features: Annotated[int, typer.Option(
+        help="SfM: most SIFT features per frame.")] = SfmConfig.max_features,
+    sfm_overlap: Annotated[int, typer.Option(
+        help="SfM: match each frame i with frames i + 1 .. i + this and i + 2^k for k < "
+             "this.")] = SfmConfig.overlap,
+    sfm_refine_focal: Annotated[bool, typer.Option(
+        help="SfM: refine the focal lengths in bundle adjustment and write the refined ones "
+             "(for an assumed focal; not with --right).")] = SfmConfig.refine_focal,
+    sfm_median_depth: Annotated[float, typer.Option(
+        help="SfM without metric depth: the sparse points' median depth, scene units (50 is "
+             "also the distance training assumes without depth).")] = SfmConfig.median_depth,
 ) -> None:
     """Import endoscopic video or frames as an EndoNeRF-layout scene folder."""
     config = ImportConfig(
@@ -226,7 +248,9 @@ def import_command(
         stereo=StereoConfig(num_disparities=num_disparities, mode=stereo_mode), focal=focal,
         fx=fx, fy=fy, cx=cx, cy=cy, calibration=calibration,
         assumed_hfov_deg=hfov, start=start, end=end, stride=stride, resize=parse_size(resize),
-        scale=scale)
+        scale=scale, poses=poses, sfm=SfmConfig(
+            max_image_size=sfm_max_image_size, max_features=sfm_max_features,
+            overlap=sfm_overlap, refine_focal=sfm_refine_focal, median_depth=sfm_median_depth))
     with progress_bar() as bar:
         tasks: dict[str, int] = {}
 
@@ -261,6 +285,12 @@ def print_import_table(scene_dir: Path) -> None:
         table.add_row("tool labels", str(extra["masks"]["tool_labels"]))
     if "depth" in extra:
         table.add_row("depth", f"{extra['depth']['source']} prior: {extra['depth']['scale']}")
+    if "poses" in extra:
+        sfm = extra["poses"]
+        table.add_row("poses", f"SfM: {sfm['registered']} of {sfm['frames']} frames registered, "
+                               f"{len(sfm['interpolated'])} interpolated, scale from "
+                               f"{sfm['scale_source']}, reprojection error "
+                               f"{sfm['reprojection_error_px']:.2f} px, {sfm['seconds']:.1f} s")
     if "stereo" in extra:
         table.add_row("stereo", f"baseline {extra['stereo']['baseline']} "
                                 f"{extra['stereo']['unit']} -> {extra['stereo']['output']}")

@@ -3,9 +3,11 @@
 What is written (see `surgsplat.data.layout`): images/ (RGB PNG), masks/ (255 = tool) when
 masks are given, fov_mask.png (255 = inside the circular field of view) when a dark border is
 found, depth/ (16-bit PNG, depth in the baseline's unit) when a right camera is given,
-poses_bounds.npy (one static camera), and scene.json: the camera's full intrinsics (fx, fy, cx,
-cy of the written frames) and, under `extra`, the source, the frame selection, how the camera
-was obtained, the field of view and the stereo settings.
+poses_bounds.npy (one static camera, or with --poses sfm each frame's camera from structure
+from motion, `surgsplat.data.sfm_poses`, and then sparse_points.ply), and scene.json: the
+camera's full intrinsics (fx, fy, cx, cy of the written frames) and, under `extra`, the source,
+the frame selection, how the camera was obtained, the field of view, the stereo settings and
+how the poses were obtained.
 
 Without labels, tool masks come from the classical segmenter (`surgsplat.data.auto_tool_masks`)
 or from an ONNX tool segmenter, and relative depth from the shading prior
@@ -44,7 +46,9 @@ from surgsplat.data.layout import Intrinsics, SceneMeta, SceneWriter, frame_stem
 from surgsplat.data.learned_priors import (DepthNetworkConfig, ToolSegmenterConfig,
                                            model_tool_masks, network_depth)
 from surgsplat.data.onnx_models import OnnxModel
+from surgsplat.data.sfm_poses import SfmConfig, SfmWorkspace, require_pycolmap
 from surgsplat.data.shading_depth import ShadingDepthConfig, shading_depth
+from surgsplat.data.sparse_points import write_sparse_points
 from surgsplat.data.stereo import StereoConfig, disparity_to_depth, stereo_disparity
 from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
 from surgsplat.errors import DataError, SurgsplatError
@@ -70,6 +74,9 @@ NETWORK_DEPTH_UNIT = "relative (depth network)"
 with the scale-invariant depth loss."""
 FOV_SAMPLE_FRAMES = 100
 """The field of view is estimated on at most this many of the selected frames, evenly spread."""
+POSE_SOURCES = ("static", "sfm")
+"""Camera poses of --poses: one static camera, or structure from motion on the tissue pixels
+(surgsplat.data.sfm_poses)."""
 
 Progress = Callable[[str, int, int], None]
 """Called as progress(stage, done, total) while importing."""
@@ -147,6 +154,10 @@ class ImportConfig:
     """Output size (width, height); must keep the aspect ratio within 1 %."""
     scale: float | None = None
     """Output size as a factor of the source size (instead of `resize`)."""
+    poses: str = "static"
+    """Camera poses: one of POSE_SOURCES."""
+    sfm: SfmConfig = field(default_factory=SfmConfig)
+    """How poses "sfm" are estimated."""
 
     def validate(self) -> None:
         """Raise SurgsplatError for an impossible combination of options."""
@@ -183,6 +194,14 @@ class ImportConfig:
             raise SurgsplatError(f"--tool-labels must list class IDs in 0..65535, got "
                                  f"{self.tool_labels}")
         self._validate_stereo()
+        if self.poses not in POSE_SOURCES:
+            raise SurgsplatError(f"unknown --poses {self.poses!r}; expected one of "
+                                 f"{', '.join(POSE_SOURCES)}")
+        if self.poses == "sfm":
+            self.sfm.validate()
+            if self.sfm.refine_focal and self.right is not None:
+                raise SurgsplatError("--sfm-refine-focal cannot go with --right: stereo depth "
+                                     "is computed with the given focal length")
 
     def _validate_camera(self) -> None:
         given = {name: getattr(self, name) for name in ("focal", "fx", "fy", "cx", "cy")}
@@ -318,6 +337,8 @@ class _Plan:
 
 
 def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
+    if config.poses == "sfm":
+        require_pycolmap()
     frames = FrameSource(source, config.pattern)
     right = _open_right(config, frames)
     stop = frames.count if config.end is None else min(config.end, frames.count)
@@ -369,8 +390,11 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         median = config.shading.median_depth if shading else config.depth_network.median_depth
         depth_scale = 4 * median / 65535  # up to 4x the median depth
     writer = SceneWriter(out_dir, fx, meta, depth_scale=depth_scale)
+    outside = None  # [H, W] bool, True = outside the field of view; None = all inside
     if plan.fov is not None and plan.fov.kind != "full":
         writer.set_fov(plan.fov.inside)
+        outside = ~plan.fov.inside
+    sfm = SfmWorkspace(plan.intrinsics, config.sfm) if config.poses == "sfm" else None
     if config.disparity_only:
         (out_dir / DISPARITY_DIR).mkdir()
     fitted = ((index, fit(image, frames.frame_path(index), frames.frame_label(index)),
@@ -412,10 +436,12 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
             else:
                 disparity[disparity < MIN_DEPTH_DISPARITY] = 0.0
                 depth = disparity_to_depth(disparity, fx, config.baseline)
+        excluded = np.zeros(image.shape[:2], bool) if outside is None else outside
+        if tool is not None:
+            excluded = excluded | tool
+        if sfm is not None:  # metric depth (stereo) sets the SfM scale, relative priors do not
+            sfm.add(image, excluded, depth)
         if config.depth != "none":
-            outside = (~plan.fov.inside if plan.fov is not None and plan.fov.kind != "full"
-                       else np.zeros(image.shape[:2], bool))
-            excluded = outside if tool is None else outside | tool
             depth = (shading_depth(image, plan.intrinsics, excluded, config.shading)
                      if network_output is None else
                      network_depth(network_output, excluded, config.depth_network))
@@ -423,6 +449,12 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         writer.add_frame(image, depth, tool)
         report("import", done, len(plan.selected))
     meta.extra = _provenance(plan, config, confidences)
+    if sfm is not None:
+        poses = sfm.solve(report)
+        writer.set_camera(poses.world_to_camera,
+                          poses.intrinsics if config.sfm.refine_focal else None)
+        write_sparse_points(out_dir, poses.points, poses.colors)
+        meta.extra["poses"] = poses.describe(config.sfm)
     return writer.finish()
 
 

@@ -11,6 +11,8 @@ A scene folder holds::
     poses_bounds.npy  [N, 17] LLFF: a 3x5 [R | t | (H, W, focal)] block per frame, then near, far
     scene.json    optional; SceneMeta (depth unit and PNG depth scale, full intrinsics,
                   provenance)
+    sparse_points.ply  optional; structure-from-motion points (world frame, scene units, RGB),
+                  written by `surgsplat import --poses sfm` (see `sparse_points`)
 
 Files of the three folders are paired in natural order of their names (frame_2 before
 frame_10, see `natural_key`); their counts must agree. Scenes imported
@@ -56,6 +58,7 @@ MASKS_DIR = "masks"
 FOV_FILE = "fov_mask.png"
 POSES_FILE = "poses_bounds.npy"
 META_FILE = "scene.json"
+SPARSE_POINTS_FILE = "sparse_points.ply"
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 DEPTH_SUFFIXES = (".png", ".npy", ".npz", ".tif", ".tiff")
@@ -287,6 +290,17 @@ class SceneWriter:
         self.poses.append(np.eye(4) if world_to_camera is None
                           else np.asarray(world_to_camera, dtype=np.float64))
         self.count += 1
+
+    def set_camera(self, world_to_camera: np.ndarray, intrinsics: Intrinsics | None = None
+                   ) -> None:
+        """Replace the poses of the frames written so far, [count, 4, 4] OpenCV world-to-camera
+        (e.g. estimated once every frame is in), and, given, the intrinsics (and focal)."""
+        if world_to_camera.shape != (self.count, 4, 4):
+            raise ValueError(f"expected [{self.count}, 4, 4] poses, got {world_to_camera.shape}")
+        self.poses = list(np.asarray(world_to_camera, dtype=np.float64))
+        if intrinsics is not None:
+            self.meta.intrinsics = intrinsics
+            self.focal = float(intrinsics.fx)
 
     def set_fov(self, inside: np.ndarray) -> None:
         """The field of view of every frame, bool [H, W] (True = inside); written by finish()."""

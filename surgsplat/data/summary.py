@@ -36,6 +36,8 @@ class SceneSummary:
     fov_share: float  # share of pixels inside the field of view (1.0 without fov_mask.png)
     has_masks: bool
     tool_mask_confidence: list[float] | None = None  # per frame, automatic masks only (0..1)
+    sfm_registered: int | None = None  # frames registered by SfM; None = poses not from SfM
+    sfm_interpolated: list[int] | None = None  # frames whose pose is interpolated (SfM only)
 
 
 def mask_confidence(scene: Scene) -> list[float] | None:
@@ -52,6 +54,25 @@ def mask_confidence(scene: Scene) -> list[float] | None:
         raise DataError(scene.root / META_FILE, f"extra.masks.confidence must list one number "
                                                 f"in [0, 1] per frame ({len(scene.frames)})")
     return [float(v) for v in values]
+
+
+def sfm_frames(scene: Scene) -> tuple[int, list[int]] | None:
+    """(registered count, indices of the interpolated frames) of poses from structure from
+    motion (scene.json extra.poses), None for other poses; raises DataError unless the
+    interpolated frames are distinct frame indices and the counts add up."""
+    poses = scene.meta.extra.get("poses")
+    if not isinstance(poses, dict) or poses.get("source") != "sfm":
+        return None
+    count = len(scene.frames)
+    registered, interpolated = poses.get("registered"), poses.get("interpolated")
+    if not (isinstance(interpolated, list) and all(
+            isinstance(i, int) and not isinstance(i, bool) and 0 <= i < count
+            for i in interpolated) and len(set(interpolated)) == len(interpolated)
+            and isinstance(registered, int) and registered + len(interpolated) == count):
+        raise DataError(scene.root / META_FILE, f"extra.poses must give registered (an integer) "
+                                                f"and interpolated (distinct frame indices in "
+                                                f"0..{count - 1}) adding up to {count} frames")
+    return registered, sorted(interpolated)
 
 
 def summarise(scene: Scene) -> SceneSummary:
@@ -72,6 +93,7 @@ def summarise(scene: Scene) -> SceneSummary:
         depth_max = max(highs) if highs else None
         valid_share = valid_counts / max(tissue_counts, 1)
     camera = scene.camera
+    sfm = sfm_frames(scene)
     centres = torch.stack([f.camera.camera_to_world[:3, 3] for f in scene.frames])  # [N, 3]
     return SceneSummary(
         root=str(scene.root), num_frames=len(scene.frames), width=scene.width,
@@ -83,7 +105,9 @@ def summarise(scene: Scene) -> SceneSummary:
         depth_min=depth_min, depth_max=depth_max, depth_valid_share=valid_share,
         tool_share_mean=float(tool_shares.mean()), tool_share_max=float(tool_shares.max()),
         fov_share=float(scene.frames[0].fov.float().mean()), has_masks=scene.has_masks,
-        tool_mask_confidence=mask_confidence(scene))
+        tool_mask_confidence=mask_confidence(scene),
+        sfm_registered=None if sfm is None else sfm[0],
+        sfm_interpolated=None if sfm is None else sfm[1])
 
 
 def format_summary(summary: SceneSummary) -> list[tuple[str, str]]:
@@ -116,4 +140,9 @@ def format_summary(summary: SceneSummary) -> list[tuple[str, str]]:
         lowest = min(range(len(confidence)), key=confidence.__getitem__)
         rows.append(("tool mask confidence", f"mean {sum(confidence) / len(confidence):.2f}, "
                                              f"lowest {confidence[lowest]:.2f} (frame {lowest})"))
+    if summary.sfm_interpolated is not None:
+        flagged = summary.sfm_interpolated
+        rows.append(("SfM poses", f"{summary.sfm_registered} of {summary.num_frames} frames "
+                                  "registered" + (f"; interpolated: frames {flagged}" if flagged
+                                                  else "")))
     return rows

@@ -10,7 +10,9 @@ fusion (MOGF, `endoplanar.txt` 2.2):
   0; MOGF instead learns a MOG2 background model over frames 1..N-1, applies it to frame 0, and
   adds the later-frame pixels of the foreground (moving) region it finds.
 
-Without depth (monocular video) the points lie on a fronto-parallel plane at a chosen distance.
+Without depth (monocular video) the points are the scene's structure-from-motion points
+(sparse_points.ply, written by `surgsplat import --poses sfm`) when it has them, else they lie
+on a fronto-parallel plane at a chosen distance.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import torch
 from torch import Tensor
 
 from surgsplat.data.scene import Frame, Scene
+from surgsplat.data.sparse_points import read_sparse_points
 from surgsplat.errors import DataError
 from surgsplat.image.pinhole import backproject
 
@@ -45,6 +48,9 @@ class InitConfig:
     """MOGF: MOG2 variance threshold (OpenCV's varThreshold)."""
     monocular_depth: float = field(default=50.0, metadata={"range": "(0, inf)"})
     """Scenes without depth: distance of the initial plane, in scene units."""
+    sparse_points: bool = True
+    """Scenes without depth: start from the scene's structure-from-motion points when it has
+    them (instead of the plane)."""
     seed: int = field(default=0, metadata={"range": "[0, 4294967295]"})
     """Seed of the subsampling."""
     max_fusion_frames: int = field(default=256, metadata={"range": "[1, inf)"})
@@ -126,6 +132,8 @@ def initial_points(scene: Scene, config: InitConfig) -> PointCloud:
             means.append(backproject(frame.depth, camera.K, mask, camera.camera_to_world))
             colors.append(frame.image[mask & (frame.depth > 0)])
         points, rgb = torch.cat(means), torch.cat(colors)
+    elif config.sparse_points and (sparse := read_sparse_points(scene.root)) is not None:
+        points, rgb = (torch.from_numpy(array) for array in sparse)
     else:
         first = scene.train_frames[0]
         mask = first.tissue & _stride_mask(scene.height, scene.width, config.pixel_stride)

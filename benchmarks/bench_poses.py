@@ -1,0 +1,188 @@
+"""Camera poses at import (`surgsplat import --poses sfm`): trajectory errors on the moving
+phantom, registration on the CholecSeg8k clip.
+
+    python benchmarks/bench_poses.py [--phantom DIR | --preset full] [--data PATH] [--work DIR]
+                                     [--out FILE] [--plot DIR]
+
+Moving phantom (generated into --work unless --phantom names one): its frames and tool masks
+are imported with the true focal length and --poses sfm (no depth: the scale is the
+convention's), and the estimated poses are compared with the true ones after a similarity
+alignment (`surgsplat.eval.trajectory`): ATE, rotation error (mean, max), RPE between
+consecutive frames. Against two truths: the world poses (gt/camera_poses.npy) and the camera
+relative to the tissue, which breathes rigidly by up to 1.6 mm in the world, a motion no image
+can tell from the camera's own. Once more without the focal length (assumed from a 70 degree
+field of view) and --sfm-refine-focal: the refined focal length and its errors. The reference, measured in the same run, is the static import
+(one fixed camera, what `import` wrote before `--poses sfm`): its errors and its seconds.
+
+CholecSeg8k clip (73 frames, 854x480, 72 with labels; tool = classes 31, 32, the border 50 is
+found as the field of view): registered and interpolated frames, reprojection error, sparse
+points and seconds, beside the static import's seconds.
+
+Each import runs in its own process; seconds are its wall time and CPU seconds (user + system,
+both threads) from the operating system, and the SfM stages' wall time from scene.json. The
+machine is shared, so wall times vary with its load; CPU seconds much less.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_render import write_report  # noqa: E402
+
+from surgsplat.data.layout import META_FILE  # noqa: E402
+from surgsplat.data.phantom.generate import PRESETS  # noqa: E402
+from surgsplat.data.scene import load_scene  # noqa: E402
+from surgsplat.eval.trajectory import (TrajectoryErrors, phantom_tissue_poses,  # noqa: E402
+                                       rotation_angle_deg, similarity_alignment,
+                                       trajectory_errors)
+
+SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
+DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "cholecseg8k-clip"
+CHOLEC_OPTIONS = ["--pattern", "*_endo.png", "--mask-pattern", "*_endo_watershed_mask.png",
+                  "--tool-labels", "31,32", "--allow-missing-masks"]
+
+
+def run_import(source: Path, out: Path, options: list[str]) -> dict:
+    """Run `surgsplat import source --out out options` in its own process: wall and CPU
+    seconds."""
+    shutil.rmtree(out, ignore_errors=True)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    started = time.perf_counter()
+    subprocess.run([*SURGSPLAT, "import", str(source), "--out", str(out), *options], check=True,
+                   stdout=subprocess.DEVNULL)
+    wall = time.perf_counter() - started
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"seconds": wall, "cpu_seconds": cpu}
+
+
+def poses_of(scene_dir: Path) -> np.ndarray:
+    """[N, 4, 4] world-to-camera of a scene folder's frames."""
+    return np.stack([frame.camera.world_to_camera.double().numpy()
+                     for frame in load_scene(scene_dir).frames])
+
+
+def sfm_facts(scene_dir: Path) -> dict:
+    """What scene.json says of the SfM run."""
+    poses = json.loads((scene_dir / META_FILE).read_text())["extra"]["poses"]
+    keys = ("registered", "frames", "interpolated", "scale_source", "scale", "sparse_points",
+            "reprojection_error_px", "seconds", "stage_seconds")
+    return {key: poses[key] for key in keys}
+
+
+def errors_row(errors: TrajectoryErrors) -> dict:
+    return {"ate_mm": errors.ate, "rotation_mean_deg": errors.rotation_mean_deg,
+            "rotation_max_deg": errors.rotation_max_deg, "rpe_mm": errors.rpe_translation,
+            "rpe_rotation_deg": errors.rpe_rotation_deg, "alignment_scale": errors.scale}
+
+
+def static_errors(true: np.ndarray) -> dict:
+    """Errors of the static camera (every pose the identity): no similarity can align a single
+    point's orientation and path, so the centres are compared as they are, and the rotation
+    error is each true camera's angle from the first."""
+    centres = np.linalg.inv(true)[:, :3, 3]
+    angles = rotation_angle_deg(true[:, :3, :3])  # from the first camera (the world)
+    return {"ate_mm": float(np.sqrt(((centres - centres[0]) ** 2).sum(1).mean())),
+            "rotation_mean_deg": float(angles.mean()), "rotation_max_deg": float(angles.max())}
+
+
+def phantom_case(phantom: Path, work: Path, plot: Path | None) -> dict:
+    preset = json.loads((phantom / META_FILE).read_text())["extra"]["preset"]
+    options = ["--masks", str(phantom / "masks"), "--focal", str(PRESETS[preset].focal)]
+    static = run_import(phantom / "images", work / "phantom-static", options)
+    sfm_dir = work / "phantom-sfm"
+    timing = run_import(phantom / "images", sfm_dir, [*options, "--poses", "sfm"])
+    estimated = poses_of(sfm_dir)
+    world, tissue = phantom_tissue_poses(phantom)
+    refined_dir = work / "phantom-sfm-focal"
+    refined_timing = run_import(phantom / "images", refined_dir,
+                                ["--masks", str(phantom / "masks"), "--poses", "sfm",
+                                 "--sfm-refine-focal"])
+    guess = json.loads((refined_dir / META_FILE).read_text())["extra"]["focal_px"]
+    if plot is not None:
+        plot_trajectory(estimated, world, tissue, plot / "traj.png")
+    return {"phantom": str(phantom), "preset": preset, "frames": len(world),
+            "size_wh": [PRESETS[preset].width, PRESETS[preset].height], **timing,
+            "sfm": sfm_facts(sfm_dir),
+            "against_tissue": errors_row(trajectory_errors(estimated, tissue)),
+            "against_world": errors_row(trajectory_errors(estimated, world)),
+            "static_reference": {**static, "against_tissue": static_errors(tissue)},
+            "focal_refinement": {
+                "true_px": PRESETS[preset].focal, "assumed_px": guess,
+                "refined_px": load_scene(refined_dir).camera.fx, **refined_timing,
+                "against_tissue": errors_row(trajectory_errors(poses_of(refined_dir), tissue))}}
+
+
+def cholec_case(data: Path, work: Path) -> dict:
+    options = [*CHOLEC_OPTIONS, "--masks", str(data)]
+    static = run_import(data, work / "cholec-static", options)
+    timing = run_import(data, work / "cholec-sfm", [*options, "--poses", "sfm"])
+    return {"data": str(data), **timing, "sfm": sfm_facts(work / "cholec-sfm"),
+            "static_reference": static}
+
+
+def plot_trajectory(estimated: np.ndarray, world: np.ndarray, tissue: np.ndarray,
+                    path: Path) -> None:
+    """Camera centres over the frames (x, y, z in mm): the estimate aligned to the tissue
+    truth, the tissue truth and the world truth."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    estimated_c2w, tissue_c2w = np.linalg.inv(estimated), np.linalg.inv(tissue)
+    aligned = similarity_alignment(estimated_c2w, tissue_c2w).apply(estimated_c2w[:, :3, 3])
+    curves = {"true, relative to the tissue": tissue_c2w[:, :3, 3],
+              "true, world (tissue breathes)": np.linalg.inv(world)[:, :3, 3],
+              "SfM, aligned": aligned}
+    figure, axes = plt.subplots(1, 4, figsize=(17, 4))
+    for axis, name in enumerate("xyz"):
+        for (label, centres), style in zip(curves.items(), ("-", ":", "--")):
+            axes[axis].plot(centres[:, axis], style, label=label)
+        axes[axis].set(title=f"camera centre {name}", xlabel="frame", ylabel="mm")
+    for (label, centres), style in zip(curves.items(), ("-", ":", "--")):
+        axes[3].plot(centres[:, 0], centres[:, 1], style, label=label)
+    axes[3].set(title="from the front (x, y)", xlabel="x mm", ylabel="y mm", aspect="equal")
+    axes[0].legend(fontsize=8)
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--phantom", type=Path, help="moving-camera phantom folder (default: "
+                        "generate one of --preset into --work)")
+    parser.add_argument("--preset", default="full", help="phantom size to generate")
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="CholecSeg8k clip")
+    parser.add_argument("--work", type=Path, default=Path("/tmp/surgsplat-bench-poses"))
+    parser.add_argument("--out", type=Path, help="JSON file (default: "
+                        "benchmarks/results/bench_poses-<cpu>-<best ISA>.json)")
+    parser.add_argument("--plot", type=Path, help="folder for traj.png")
+    args = parser.parse_args()
+    args.work.mkdir(parents=True, exist_ok=True)
+    phantom = args.phantom
+    if phantom is None:
+        phantom = args.work / f"phantom-{args.preset}-moving"
+        shutil.rmtree(phantom, ignore_errors=True)
+        subprocess.run([*SURGSPLAT, "phantom", "--out", str(phantom), "--preset", args.preset,
+                        "--camera", "moving"], check=True, stdout=subprocess.DEVNULL)
+    result = {"phantom": phantom_case(phantom, args.work, args.plot)}
+    if args.data.is_dir():
+        result["cholecseg8k"] = cholec_case(args.data, args.work)
+    print(json.dumps(result, indent=2))
+    print(f"written to {write_report('bench_poses', result, args.out)}")
+
+
+if __name__ == "__main__":
+    main()
