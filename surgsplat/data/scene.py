@@ -155,6 +155,15 @@ class Frame:
         return Frame(self.index, self.time, self.image, self.depth, self.is_test, self.camera,
                      tool, self.fov)
 
+    def seen_by(self, camera: Camera) -> "Frame":
+        """This frame (the same pixels, held or stored) seen by `camera` instead of its own, e.g.
+        with a pose that training refined."""
+        frame = Frame.__new__(Frame)
+        frame.index, frame.time, frame.is_test, frame.camera = (self.index, self.time,
+                                                                self.is_test, camera)
+        frame._held, frame._store = self._held, self._store
+        return frame
+
     def prefetch(self) -> None:
         """Say that this frame is needed soon: its files start decoding in the background
         (nothing to do for a frame whose pixels are held or cached)."""

@@ -59,7 +59,7 @@ class SurfaceFamily(GroundTruthMeshFamily):
     name = "geometry"
 
     def score_against_mesh(self, view: FrameView) -> dict[str, float]:
-        frame = view.frame
+        frame = view.seen
         return frame_geometry(view.render.depth, view.render.alpha, frame.tissue, frame.camera,
                               *view.gt_mesh, seed=frame.index)
 
@@ -81,7 +81,7 @@ class MeshFamily(MetricFamily):
     def score(self, view: FrameView) -> dict[str, float]:
         if self.meshes is None or view.gt_mesh is None:
             return {}
-        return mesh_geometry(self.meshes.frame_mesh(view.frame), view.frame, *view.gt_mesh)
+        return mesh_geometry(self.meshes.frame_mesh(view.frame), view.seen, *view.gt_mesh)
 
     def conventions(self) -> dict[str, str]:
         route = self.meshes.route if self.meshes else None
@@ -105,7 +105,7 @@ class GaussianCentresFamily(GroundTruthMeshFamily):
         tissue = model.tissue_members()
         if tissue is not None:
             means, opacities = means[tissue], opacities[tissue]
-        return gaussian_geometry(means, opacities, view.frame, *view.gt_mesh,
+        return gaussian_geometry(means, opacities, view.seen, *view.gt_mesh,
                                  seed=view.frame.index)
 
     def conventions(self) -> dict[str, str]:
@@ -139,7 +139,7 @@ class CollisionFamily(GroundTruthMeshFamily):
         return collision_fractions(proxy, {
             "collision_fraction": state.means[tissue],
             "collision_fraction_truth": torch.from_numpy(truth).to(state.means.dtype)},
-            view.frame)
+            view.seen)
 
     def conventions(self) -> dict[str, str]:
         return {"collision_truth": "collision_fraction: share of the deformed tissue Gaussian "

@@ -66,6 +66,14 @@ class FrameView:
         return self.render.rgb.clamp(0, 1)
 
     @cached_property
+    def seen(self) -> Frame:
+        """The frame seen by the camera the run renders it with (`SplatModel.camera_at`: its
+        own, or the pose a component refined), for every family that places the render or the
+        Gaussians in the world."""
+        with torch.no_grad():
+            return self.frame.seen_by(self.run.model.camera_at(self.frame.camera, self.when))
+
+    @cached_property
     def state(self) -> GaussianState:
         """The Gaussians at the frame's time (every component applied, detached); computed once
         for every family that needs them."""

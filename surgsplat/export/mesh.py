@@ -95,9 +95,11 @@ class MeshExtractor:
 
     @torch.no_grad()
     def frame_mesh(self, frame: Frame, when: FrameTime | None = None) -> FrameMesh:
-        """The tissue mesh seen by `frame`'s camera, at `when` (default the frame's own time)."""
+        """The tissue mesh seen by `frame`'s camera (as the model renders the frame:
+        `SplatModel.camera_at`), at `when` (default the frame's own time)."""
         when = when or FrameTime(frame.index, frame.time)
         output = render_frame(self.model, frame.camera, when, self.background)
+        frame = frame.seen_by(self.model.camera_at(frame.camera, when))
         if self.field is None:
             return depth_mesh(output, frame, self.options)
         vertices, faces, cell = self.canonical_mesh()

@@ -187,3 +187,25 @@ def test_checkpoint_resume_keeps_the_corrections(small_phantom, tmp_path):
     assert torch.equal(resumed.model.camera_at(frame.camera, when).world_to_camera,
                        trainer.model.camera_at(frame.camera, when).world_to_camera)
 
+
+
+def test_evaluation_sees_a_frame_by_its_refined_camera():
+    """FrameView.seen: the frame's pixels, the camera the model renders it with (the refined
+    pose), so that geometry placed in the world by the frame's camera uses the refined pose."""
+    from types import SimpleNamespace
+
+    from surgsplat.data.scene import Frame
+    from surgsplat.eval.metric_family import FrameView
+
+    model = refined_model()
+    with torch.no_grad():
+        model.components["camera_refine"].corrections[2] = torch.tensor(
+            [0.0, 0.02, 0.0, 0.05, 0.0, 0.0])
+    full = torch.ones(H, W, dtype=torch.bool)
+    frame = Frame(2, 0.5, torch.rand(H, W, 3), None, False, camera(torch.eye(4)),
+                  tool=~full, fov=full)
+    view = FrameView(SimpleNamespace(model=model), frame, render=None, background=None)
+    expected = model.camera_at(frame.camera, FrameTime(2, 0.5)).world_to_camera
+    assert not torch.equal(expected, frame.camera.world_to_camera)
+    assert torch.equal(view.seen.camera.world_to_camera, expected)
+    assert view.seen.image is frame.image and torch.equal(view.seen.tissue, frame.tissue)
