@@ -252,6 +252,24 @@ def long_clip_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def long_clip_validation_table(report: dict) -> str:
+    """Markdown for one bench_long_clip validation report: `load_scene` of the long clip,
+    wall and CPU seconds beside the target, and the ratio to the decoding reference."""
+    row = report["validation"]
+    extrapolated = " (extrapolated from fewer frames)" if row["extrapolated"] else ""
+    return "\n".join([
+        f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs, ISA "
+        f"{report['system']['isa']}), {report['date'][:10]}, {report['width']}x"
+        f"{report['height']}, {row['threads']} threads:",
+        "",
+        "| frames | seconds at 7500 frames | CPU seconds | target seconds | ms per frame "
+        "| ratio to one-thread decoding |",
+        "|---|---|---|---|---|---|",
+        f"| {row['frames']} | {row['seconds_at_7500_frames']:.0f}{extrapolated} "
+        f"| {row['cpu_seconds_at_7500_frames']:.0f} | {row['target_seconds']:.0f} "
+        f"| {row['ms_per_frame']:.1f} | {row['ratio_to_reference']:.2f} |"])
+
+
 def faults_table(report: dict) -> str:
     """Markdown for one bench_faults report: the work kill -9 lost, and where the report has
     them, the cases of issue 30 handled per class with the totals of bad outcomes."""
@@ -390,7 +408,9 @@ RENDERERS = {"bench_render": render_table, "bench_train": train_table,
              "bench_threads": render_threads_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,
              "bench_shading_depth": shading_depth_table, "bench_batch": methods_table,
-             "bench_long_clip": long_clip_table, "bench_articulation": articulation_table,
+             "bench_long_clip": long_clip_table,
+             "bench_long_clip_validation": long_clip_validation_table,
+             "bench_articulation": articulation_table,
              "bench_faults": faults_table, "bench_onnx_models": onnx_models_table,
              "bench_poses": poses_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
