@@ -13,10 +13,10 @@ Frames are segmented as one sequence, as the importer does, so the temporal wind
 frame's neighbours; seconds per frame are those of that whole pass at the clip's size.
 
 With --train-iters, the labelled frames are also imported three times at half size (no masks,
---auto-tool-masks, and the labels as masks), `deform3dgs` is trained for N iterations on the
-first two (once per training seed 0..S-1; the mean is reported), and every run is scored on
-the test frames against the labelled scene, so that all are scored over the same, truly
-tool-free pixels.
+--auto-tool-masks, and the labels as masks), `deform3dgs` is trained for N iterations on each
+(once per training seed 0..S-1; the mean is reported; the labels' row is the reference of
+perfect masks), and every run is scored on the test frames against the labelled scene, so that
+all are scored over the same, truly tool-free pixels.
 """
 
 from __future__ import annotations
@@ -125,13 +125,15 @@ SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
 TRAINING_SCENES = {"unmasked": (), "auto_masks": ("--auto-tool-masks",),
                    "labels": ("--masks", "{data}", "--mask-pattern", "*_endo_watershed_mask.png",
                               "--tool-labels", "31,32")}
-"""Import options of the scenes of the training comparison; "labels" is only evaluated on."""
+"""Import options of the scenes of the training comparison; every run is scored against
+"labels", which is also trained on as the reference of perfect masks."""
 
 
 def train_comparison(data: Path, frame_count: int, iterations: int, seeds: int,
                      work: Path) -> dict:
-    """Test-frame metrics of deform3dgs trained without and with automatic masks (each with
-    training seeds 0..seeds-1), all scored against the labelled scene."""
+    """Test-frame metrics of deform3dgs trained without masks, with automatic masks and with the
+    labels as masks (each with training seeds 0..seeds-1), all scored against the labelled
+    scene."""
     scenes = {}
     for name, options in TRAINING_SCENES.items():
         scenes[name] = work / f"scene-{name}"
@@ -142,7 +144,7 @@ def train_comparison(data: Path, frame_count: int, iterations: int, seeds: int,
                        check=True, stdout=subprocess.DEVNULL)
     labelled = load_scene(scenes["labels"])
     rows = {}
-    for name in ("unmasked", "auto_masks"):
+    for name in TRAINING_SCENES:
         per_seed = []
         for seed in range(seeds):
             run_dir = work / f"run-{name}-seed{seed}"
