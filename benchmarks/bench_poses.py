@@ -18,6 +18,13 @@ CholecSeg8k clip (73 frames, 854x480, 72 with labels; tool = classes 31, 32, the
 found as the field of view): registered and interpolated frames, reprojection error, sparse
 points and seconds, beside the static import's seconds.
 
+With --train-iters N, `deform3dgs` (N iterations, seeds 0..S-1) is trained on the moving
+phantom three times: with its true poses; with the poses SfM estimates from its frames, tool
+masks and depth (scale from the depth, `SfmWorkspace`), written into a copy of the phantom; and
+on that copy with `camera_refine` (a per-frame pose correction learnt while training, prior
+weight --prior). The copy's world is SfM's (the first frame's camera), not the phantom's, so
+only the metrics in the camera's frame are compared: psnr_tissue and depth_rmse_mm.
+
 Each import runs in its own process; seconds are its wall time and CPU seconds (user + system,
 both threads) from the operating system, and the SfM stages' wall time from scene.json. The
 machine is shared, so wall times vary with its load; CPU seconds much less.
@@ -37,11 +44,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_methods import surgsplat  # noqa: E402
 from bench_render import write_report  # noqa: E402
 
-from surgsplat.data.layout import META_FILE  # noqa: E402
+from surgsplat.data.layout import (META_FILE, POSES_FILE, Intrinsics, SceneMeta,  # noqa: E402
+                                   poses_bounds)
 from surgsplat.data.phantom.generate import PRESETS  # noqa: E402
 from surgsplat.data.scene import load_scene  # noqa: E402
+from surgsplat.data.sfm_poses import SfmConfig, SfmWorkspace  # noqa: E402
 from surgsplat.eval.trajectory import (TrajectoryErrors, phantom_tissue_poses,  # noqa: E402
                                        rotation_angle_deg, similarity_alignment,
                                        trajectory_errors)
@@ -131,6 +141,57 @@ def cholec_case(data: Path, work: Path) -> dict:
             "static_reference": static}
 
 
+def sfm_scene_with_depth(phantom: Path, out: Path) -> dict:
+    """A copy of `phantom` at `out` whose poses are SfM's from its frames, tool masks and depth
+    (metric scale from the depth); what the SfM run found."""
+    scene = load_scene(phantom)
+    intrinsics = (SceneMeta.read(phantom / META_FILE).intrinsics
+                  or Intrinsics.centred(scene.camera.fx, scene.width, scene.height))
+    workspace = SfmWorkspace(intrinsics, SfmConfig())
+    for frame in scene.frames:
+        workspace.add(np.rint(frame.image.numpy() * 255).astype(np.uint8),
+                      (~frame.tissue).numpy(), frame.depth.numpy())
+    poses = workspace.solve()
+    shutil.rmtree(out, ignore_errors=True)
+    shutil.copytree(phantom, out)
+    old = np.load(phantom / POSES_FILE)
+    np.save(out / POSES_FILE, poses_bounds(poses.world_to_camera, scene.height, scene.width,
+                                           float(old[0, 14]), float(old[:, 15].min()),
+                                           float(old[:, 16].max())))
+    return {"registered": int(poses.registered.sum()), "frames": len(scene.frames),
+            "scale_source": poses.scale_source, "seconds": poses.seconds}
+
+
+def training_case(phantom: Path, work: Path, iterations: int, seeds: int, prior: float
+                  ) -> dict:
+    """deform3dgs on the phantom's true poses, on SfM's, and on SfM's with camera_refine:
+    psnr_tissue and depth_rmse_mm per seed and their means."""
+    sfm_dir = work / "phantom-sfm-depth"
+    sfm = sfm_scene_with_depth(phantom, sfm_dir)
+    refine = ["--set", "components.camera_refine.kind=camera_refine",
+              "--set", f"losses.pose_prior.weight={prior}"]
+    cases = {"true_poses": (phantom, []), "sfm_poses": (sfm_dir, []),
+             "sfm_poses_refined": (sfm_dir, refine)}
+    rows = {}
+    for name, (scene, options) in cases.items():
+        per_seed = []
+        for seed in range(seeds):
+            run = work / f"run-{name}-seed{seed}"
+            shutil.rmtree(run, ignore_errors=True)
+            cpu = surgsplat("train", "--method", "deform3dgs", "--data", str(scene), "--out",
+                            str(run), "--iters", str(iterations), "--set", f"train.seed={seed}",
+                            "--set", f"init.seed={seed}", *options)
+            surgsplat("eval", str(run))
+            metrics = json.loads((run / "metrics.json").read_text())
+            per_seed.append({"psnr_tissue": metrics["psnr_tissue"],
+                             "depth_rmse_mm": metrics["depth_rmse_mm"],
+                             "train_cpu_seconds": round(cpu, 1)})
+        rows[name] = {key: float(np.mean([row[key] for row in per_seed]))
+                      for key in per_seed[0]} | {"per_seed": per_seed}
+    return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds,
+            "pose_prior_weight": prior, "sfm": sfm, "rows": rows}
+
+
 def plot_trajectory(estimated: np.ndarray, world: np.ndarray, tissue: np.ndarray,
                     path: Path) -> None:
     """Camera centres over the frames (x, y, z in mm): the estimate aligned to the tissue
@@ -169,6 +230,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="JSON file (default: "
                         "benchmarks/results/bench_poses-<cpu>-<best ISA>.json)")
     parser.add_argument("--plot", type=Path, help="folder for traj.png")
+    parser.add_argument("--train-iters", type=int, help="also train deform3dgs on true, SfM "
+                        "and refined SfM poses for this many iterations")
+    parser.add_argument("--seeds", type=int, default=1, help="training seeds 0..S-1")
+    parser.add_argument("--prior", type=float, default=0.1, help="pose_prior weight")
+    parser.add_argument("--train-only", action="store_true",
+                        help="only the training comparison (no imports, no clip)")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     phantom = args.phantom
@@ -177,9 +244,14 @@ def main() -> None:
         shutil.rmtree(phantom, ignore_errors=True)
         subprocess.run([*SURGSPLAT, "phantom", "--out", str(phantom), "--preset", args.preset,
                         "--camera", "moving"], check=True, stdout=subprocess.DEVNULL)
-    result = {"phantom": phantom_case(phantom, args.work, args.plot)}
-    if args.data.is_dir():
-        result["cholecseg8k"] = cholec_case(args.data, args.work)
+    result = {}
+    if not args.train_only:
+        result["phantom"] = phantom_case(phantom, args.work, args.plot)
+        if args.data.is_dir():
+            result["cholecseg8k"] = cholec_case(args.data, args.work)
+    if args.train_iters:
+        result["training"] = training_case(phantom, args.work, args.train_iters, args.seeds,
+                                           args.prior)
     print(json.dumps(result, indent=2))
     print(f"written to {write_report('bench_poses', result, args.out)}")
 

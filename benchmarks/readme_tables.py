@@ -230,6 +230,17 @@ def poses_table(report: dict) -> str:
                      f"({case['cpu_seconds']:.1f}) | {stages['features']:.1f} / "
                      f"{stages['matching']:.1f} / {stages['mapping']:.1f} "
                      f"| {case['static_reference']['seconds']:.1f} |")
+    training = report.get("training")
+    if training is not None:
+        lines += ["", f"| {training['method']}, {training['iterations']} iterations, "
+                      f"{training['seeds']} seed(s), moving phantom | psnr_tissue "
+                      "| depth_rmse_mm | train CPU s |", "|---|---|---|---|"]
+        labels = {"true_poses": "true poses", "sfm_poses": "SfM poses (scale from depth)",
+                  "sfm_poses_refined": "SfM poses + camera_refine (prior "
+                                       f"{training['pose_prior_weight']:g})"}
+        for name, row in training["rows"].items():
+            lines.append(f"| {labels[name]} | {row['psnr_tissue']:.2f} "
+                         f"| {row['depth_rmse_mm']:.3f} | {row['train_cpu_seconds']:.0f} |")
     return "\n".join(lines)
 
 
