@@ -411,7 +411,7 @@ def print_table(rows: list[dict], columns: tuple[str, ...]) -> None:
 
 def run_all(cases: list[Case], seeds: list[int | None], args: argparse.Namespace) -> list[dict]:
     """Every (case, seed) run, `args.jobs` at a time; each row printed as it finishes."""
-    threads = max((os.cpu_count() or 1) // args.jobs, 1)
+    threads = args.threads or max((os.cpu_count() or 1) // args.jobs, 1)
     runs = [(case, seed) for seed in seeds for case in cases]
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
         futures = [pool.submit(run_case, case, args.work, args.iters, seed, threads)
@@ -436,6 +436,10 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=None,
                         help="run every case once per seed (default: the presets' seed, once)")
     parser.add_argument("--jobs", type=int, default=1, help="cases trained at once")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="threads of every run (default: the logical CPUs over --jobs; "
+                             "give 1 to match rows measured with one thread while two "
+                             "benchmarks share the machine)")
     parser.add_argument("--merge", action="store_true",
                         help="keep the result file's rows of the cases and seeds not run now")
     parser.add_argument("--out", type=Path, default=None, help="result file (default "
@@ -446,6 +450,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.jobs < 1:
         parser.error("--jobs must be at least 1")
+    if args.threads is not None and args.threads < 1:
+        parser.error("--threads must be at least 1")
     suite = SUITES[args.suite]
     names = [case.name for case in suite.cases]
     unknown = set(args.cases or ()) - set(names)
