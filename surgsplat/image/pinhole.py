@@ -94,7 +94,10 @@ def depth_normals(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
     hx, hy, hz = across(x), across(y), across(z)
     vx, vy, vz = down(x), down(y), down(z)
     cross = (hy * vz - hz * vy, hz * vx - hx * vz, hx * vy - hy * vx)
-    length = torch.sqrt(cross[0].square() + cross[1].square() + cross[2].square())
+    # clamped inside the sqrt: where nothing is rendered the cross product is 0, and the sqrt's
+    # infinite slope there would make the gradient of any loss NaN, masked pixels included
+    length = torch.sqrt((cross[0].square() + cross[1].square() + cross[2].square())
+                        .clamp_min(1e-24))
     facing = cross[0] * x[1:-1, 1:-1] + cross[1] * y[1:-1, 1:-1] + cross[2] * z[1:-1, 1:-1]
     scale = torch.where(facing < 0, -1.0, 1.0) / length.clamp_min(1e-12)
     normals = torch.nn.functional.pad(torch.stack([c * scale for c in cross], dim=-1),

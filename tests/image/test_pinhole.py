@@ -76,3 +76,21 @@ def test_depth_normals_match_the_cross_product_reference_with_gradients():
     (reference,) = torch.autograd.grad((expected * weights).sum(), depth)
     scale = float(reference.abs().max())
     torch.testing.assert_close(gradient, reference, atol=1e-9 * scale, rtol=0)
+
+
+def test_depth_normals_give_finite_gradients_where_nothing_is_rendered():
+    """A rendered depth is 0 where no Gaussian covers the image (a moving camera turning toward
+    tissue not yet reconstructed). The normal there is invalid and must not turn the gradient
+    of a loss over the valid pixels into NaN (the sqrt of a zero cross product did, and
+    `endoplanar` stopped on the moving phantom once its normal loss started)."""
+    K = torch.tensor([[50.0, 0, 16], [0, 50.0, 12], [0, 0, 1]])
+    depth = torch.full((24, 32), 80.0)
+    depth[:, :10] = 0.0  # uncovered strip
+    depth = depth.requires_grad_()
+    normals, valid = depth_normals(depth, K)
+    target = torch.tensor([0.0, 0.0, 1.0])
+    error = (normals - target).abs().sum(-1)
+    loss = torch.where(valid, error, torch.zeros_like(error)).sum()
+    loss.backward()
+    assert valid[:, :11].sum() == 0 and valid[1:-1, 12:-1].all()
+    assert torch.isfinite(depth.grad).all()
