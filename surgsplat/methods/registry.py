@@ -116,8 +116,8 @@ def endogsg() -> MethodConfig:
     - the orientation term (lambda_5 = 0.5) is off (weight 0; `--set
       losses.orientation.weight=0.5` brings it back). Full phantom, 3000 iterations, seed 0,
       with it at 0.5: psnr_tissue 37.60 dB against 38.99 without, psnr_occluded 30.05 against
-      30.94, for no geometric gain (opacity-weighted Gaussian P2S median 0.158 against 0.171 mm,
-      SDF mesh P2S median 0.039 against 0.042 mm); at 0.05 it cost as much (37.55 dB). A cost
+      30.94, for a small geometric gain (opacity-weighted Gaussian P2S median 0.158 against
+      0.171 mm, SDF mesh P2S median 0.039 against 0.042 mm); at 0.05 it cost as much (37.55 dB). A cost
       that does not fall with the weight fits Adam: its step does not scale with the gradient,
       so wherever this term's gradient is the larger one in the rotations, they follow the SDF
       normal rather than the images. Sampling every Gaussian each step instead of 2048 was no
