@@ -99,7 +99,7 @@ def depth_normals(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
     length = torch.sqrt((cross[0].square() + cross[1].square() + cross[2].square())
                         .clamp_min(1e-24))
     facing = cross[0] * x[1:-1, 1:-1] + cross[1] * y[1:-1, 1:-1] + cross[2] * z[1:-1, 1:-1]
-    scale = torch.where(facing < 0, -1.0, 1.0) / length.clamp_min(1e-12)
+    scale = torch.where(facing < 0, -1.0, 1.0) / length
     normals = torch.nn.functional.pad(torch.stack([c * scale for c in cross], dim=-1),
                                       (0, 0, 1, 1, 1, 1))
     positive = depth > 0

@@ -117,12 +117,12 @@ def endogsg() -> MethodConfig:
       losses.orientation.weight=0.5` brings it back). Full phantom, 3000 iterations, seed 0,
       with it at 0.5: psnr_tissue 37.60 dB against 38.99 without, psnr_occluded 30.05 against
       30.94, for a small geometric gain (opacity-weighted Gaussian P2S median 0.158 against
-      0.171 mm, SDF mesh P2S median 0.039 against 0.042 mm); at 0.05 it cost as much (37.55 dB). A cost
-      that does not fall with the weight fits Adam: its step does not scale with the gradient,
-      so wherever this term's gradient is the larger one in the rotations, they follow the SDF
-      normal rather than the images. Sampling every Gaussian each step instead of 2048 was no
-      better (37.12 dB, 2.2x the CPU time).
-      The other couplings were each neutral for psnr_tissue with the orientation on (37.61 dB
+      0.171 mm, SDF mesh P2S median 0.039 against 0.042 mm); at 0.05 it cost as much
+      (37.55 dB). A cost that does not fall with the weight fits Adam: its step does not scale
+      with the gradient, so wherever this term's gradient is the larger one in the rotations,
+      they follow the SDF normal rather than the images (a reading, not a measurement).
+      Sampling every Gaussian each step instead of 2048 was no better (37.12 dB, 2.2x the CPU
+      time). The other couplings were each neutral for psnr_tissue with the orientation on (37.61 dB
       without projection, 37.64 without the opacity bell, 37.84 with gamma 0). Without both the
       orientation and the projection: 40.93 dB, but P2S 0.213 mm, no better than EndoGaussian
       (0.208): the projection is what buys the geometry, for about 1.9 dB."""
