@@ -13,8 +13,11 @@ from __future__ import annotations
 import json
 import math
 import resource
+import signal
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -287,16 +290,19 @@ class Trainer:
         train = self.config.train
         last_save, saved_at = time.monotonic(), self.iteration
         try:
-            while self.iteration < train.iterations:
-                stats = self.step()
-                if on_step:
-                    on_step(stats)
-                if stats.iteration % LOG_EVERY == 0 or stats.iteration == train.iterations:
-                    log.write(json.dumps(asdict(stats)) + "\n")
-                if (stats.iteration % train.checkpoint_every == 0
-                        or time.monotonic() - last_save >= train.checkpoint_seconds):
-                    self.save()
-                    last_save, saved_at = time.monotonic(), self.iteration
+            with stops_between_steps() as stop_requested:
+                while self.iteration < train.iterations:
+                    stats = self.step()
+                    if on_step:
+                        on_step(stats)
+                    if stats.iteration % LOG_EVERY == 0 or stats.iteration == train.iterations:
+                        log.write(json.dumps(asdict(stats)) + "\n")
+                    if (stats.iteration % train.checkpoint_every == 0
+                            or time.monotonic() - last_save >= train.checkpoint_seconds):
+                        self.save()
+                        last_save, saved_at = time.monotonic(), self.iteration
+                    if stop_requested():
+                        raise KeyboardInterrupt
         except KeyboardInterrupt:
             self.save()
             raise
@@ -352,3 +358,22 @@ class Trainer:
         self.elapsed = float(state["elapsed_seconds"])
         self.peak_rss_mb = float(state["peak_rss_mb"])
         return damaged
+
+
+@contextmanager
+def stops_between_steps() -> Iterator[Callable[[], bool]]:
+    """Hold Ctrl-C and SIGTERM until the current step ends: yields a function saying whether one
+    came. A stop in the middle of a step (e.g. of densification, with some per-Gaussian tensors
+    resized and others not) would leave a state no checkpoint can hold. Outside the main thread,
+    where signal handlers cannot be set, stops act at once as before."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    pending: list[int] = []
+    previous = {number: signal.signal(number, lambda got, frame: pending.append(got))
+                for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield lambda: bool(pending)
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
