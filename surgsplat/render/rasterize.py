@@ -55,13 +55,17 @@ class _NativeRasterize(torch.autograd.Function):
         return (*grads, None, None, None, None, None, None)
 
 
+class NonFiniteError(ValueError):
+    """An input of the rasterizer holds NaN or Inf entries."""
+
+
 def check_finite(**tensors: Tensor) -> None:
-    """ValueError naming the first input with NaN or Inf entries (one reduction per tensor on
+    """NonFiniteError naming the first input with NaN or Inf entries (one reduction per tensor on
     the fast path: a finite sum means finite entries, barring float overflow)."""
     for name, tensor in tensors.items():
         if not bool(torch.isfinite(tensor.sum())) and not bool(torch.isfinite(tensor).all()):
             bad = int((~torch.isfinite(tensor)).sum())
-            raise ValueError(f"rasterize: {name} has {bad} non-finite (NaN or Inf) entries")
+            raise NonFiniteError(f"rasterize: {name} has {bad} non-finite (NaN or Inf) entries")
 
 
 def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,

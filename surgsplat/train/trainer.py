@@ -5,7 +5,9 @@ Ctrl-C. The loop knows components only through their contract (`surgsplat.model.
 A run folder holds config.json (the resolved MethodConfig), scene.txt (the scene path),
 scene.json (what identifies the scene: path, content fingerprint, frame count and size),
 checkpoints/latest.pt, and train_log.jsonl (one JSON line per logged step, with every loss term;
-iterations strictly increasing, none past the checkpoint once a run resumes).
+iterations strictly increasing, none past the checkpoint once a run resumes). A checkpoint never
+holds a value that is not finite: a step whose loss is not finite, or a save of such a model,
+stops the run with TrainingDiverged and leaves the last good checkpoint in place.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from surgsplat.model.component import (Component, FrameTime, ParamGroup, RenderC
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GEOMETRY_KEYS, GaussianModel
 from surgsplat.model.init_points import initial_points
+from surgsplat.render.rasterize import NonFiniteError
 from surgsplat.train.checkpoint import (build_components, load_latest_or_previous,
                                         model_from_state, model_state,
                                         optimizer_state_in_order, save_atomic)
@@ -48,6 +51,10 @@ LOG_FILE = "train_log.jsonl"
 LOG_EVERY = 10
 PREFETCH_FRAMES = 3
 """Training frames decoded ahead in the background: the next ones of the sampling order."""
+
+
+class TrainingDiverged(SurgsplatError):
+    """A loss term or a trained value stopped being finite; nothing of it was saved."""
 
 
 @dataclass
@@ -251,7 +258,11 @@ class Trainer:
         when = FrameTime(frame.index, frame.time)
         camera = self.model.camera_at(frame.camera, when)
         absgrad = torch.zeros(self.model.gaussians.num_gaussians)
-        output, state = self.model.render(camera, when, self.background, absgrad=absgrad)
+        try:
+            output, state = self.model.render(camera, when, self.background, absgrad=absgrad)
+        except NonFiniteError as err:
+            raise TrainingDiverged(f"training diverged at iteration {self.iteration}: {err}"
+                                   ) from None
         context = RenderContext(frame=frame, when=when, camera=camera, output=output,
                                 state=state, gaussians=self.model.gaussians,
                                 iteration=self.iteration)
@@ -260,6 +271,10 @@ class Trainer:
                    if w.weight != 0 and self.iteration >= w.start_iteration(iterations)}
         terms = self.model.losses(context, frozenset(weights))
         loss = sum(weights[name] * value for name, value in terms.items())
+        if not math.isfinite(float(loss)):
+            bad = [name for name, value in terms.items() if not bool(torch.isfinite(value).all())]
+            raise TrainingDiverged(f"training diverged at iteration {self.iteration}: loss "
+                                   f"term{'s' if len(bad) > 1 else ''} {', '.join(bad)} not finite")
         self.optimizer.zero_grad(set_to_none=True)
         if loss.requires_grad:  # not when every active term is a constant 0 on this frame
             loss.backward()
@@ -283,7 +298,8 @@ class Trainer:
 
     # ---- the run ----
     def fit(self, on_step: Callable[[StepStats], None] | None = None) -> None:
-        """Train to config.train.iterations; Ctrl-C saves a checkpoint and re-raises."""
+        """Train to config.train.iterations; Ctrl-C saves a checkpoint and re-raises; a loss or a
+        value that stops being finite raises TrainingDiverged, saying which checkpoint is kept."""
         self.write_run_files()
         trim_log(self.run_dir / LOG_FILE, self.iteration)
         log = open(self.run_dir / LOG_FILE, "a", buffering=1)  # line-buffered: a crash keeps the log
@@ -303,13 +319,19 @@ class Trainer:
                         last_save, saved_at = time.monotonic(), self.iteration
                     if stop_requested():
                         raise KeyboardInterrupt
+            if saved_at != self.iteration or not (self.run_dir / CHECKPOINT).is_file():
+                self.save()
         except KeyboardInterrupt:
             self.save()
             raise
+        except TrainingDiverged as err:
+            kept = (f"{self.run_dir / CHECKPOINT} (iteration {saved_at}) is kept"
+                    if (self.run_dir / CHECKPOINT).is_file() else "no checkpoint was written")
+            raise TrainingDiverged(f"{err}; {kept}. A resume repeats the same steps: start a "
+                                   "new run with lower learning rates or loss weights (--set)"
+                                   ) from None
         finally:
             log.close()
-        if saved_at != self.iteration or not (self.run_dir / CHECKPOINT).is_file():
-            self.save()
 
     def write_run_files(self) -> None:
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -336,6 +358,12 @@ class Trainer:
         }
 
     def save(self) -> Path:
+        """Write the checkpoint atomically; TrainingDiverged instead when a trained value is not
+        finite, so the checkpoint on disk stays the last good one."""
+        for group in self.optimizer.param_groups:
+            if not all(bool(torch.isfinite(param).all()) for param in group["params"]):
+                raise TrainingDiverged(f"training diverged at iteration {self.iteration}: "
+                                       f"{group['name']} holds values that are not finite")
         path = self.run_dir / CHECKPOINT
         save_atomic(self.state_dict(), path)
         return path

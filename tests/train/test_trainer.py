@@ -4,6 +4,8 @@ and the evaluation of the run is sane. Each test trains only a few dozen iterati
 from __future__ import annotations
 
 import json
+import os
+import signal
 
 import pytest
 import torch
@@ -14,8 +16,9 @@ from surgsplat.losses.photometric import photometric_loss
 from surgsplat.methods.registry import PRESETS, method_config
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
+from surgsplat.train import per_gaussian
 from surgsplat.train.run import load_trained_run
-from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, LOG_FILE, Trainer
+from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, LOG_FILE, Trainer, TrainingDiverged
 
 
 def small_config(name: str, iterations: int):
@@ -159,3 +162,98 @@ def test_frames_without_depth_cost_no_depth_backward(small_phantom, tmp_path):
     assert only_depth.step().loss == 0.0
     after = only_depth.model.gaussians.params
     assert all(torch.equal(after[k].detach(), v) for k, v in before.items())
+
+
+def nan_term_from(trainer: Trainer, iteration: int, term: str = "photometric") -> None:
+    """Make `term` of `trainer`'s loss NaN from `iteration` on."""
+    losses = trainer.model.losses
+
+    def poisoned(context, active):
+        terms = losses(context, active)
+        if context.iteration >= iteration:
+            terms[term] = terms[term] * float("nan")
+        return terms
+
+    trainer.model.losses = poisoned
+
+
+def test_a_loss_that_is_not_finite_stops_the_run_and_keeps_the_last_checkpoint(
+        small_phantom, tmp_path):
+    config = small_config("deform3dgs", 30)
+    config.train.checkpoint_every = 5
+    trainer = Trainer(config, load_scene(small_phantom), tmp_path / "run")
+    nan_term_from(trainer, 8)
+    with pytest.raises(TrainingDiverged, match=r"iteration 8: loss term photometric not finite; "
+                                               r".*latest.pt \(iteration 5\) is kept"):
+        trainer.fit()
+    state = torch.load(tmp_path / "run" / CHECKPOINT, weights_only=True)
+    assert state["iteration"] == 5
+
+
+def test_a_trained_value_that_is_not_finite_is_never_saved(small_phantom, tmp_path):
+    config = small_config("deform3dgs", 30)
+    config.train.checkpoint_every = 5
+    trainer = Trainer(config, load_scene(small_phantom), tmp_path / "run")
+
+    def corrupt(stats):  # one mean turns NaN; the Gaussian may be culled, the loss stay finite
+        if stats.iteration == 7:
+            with torch.no_grad():
+                trainer.model.gaussians.params["means"][0, 0] = float("nan")
+
+    with pytest.raises(TrainingDiverged, match=r"iteration [6-9]: (means holds values that are "
+                                               r"not finite|rasterize: means2d has \d+ non-finite"
+                                               r" .*entries); .*\(iteration 5\) is kept"):
+        trainer.fit(corrupt)
+    state = torch.load(tmp_path / "run" / CHECKPOINT, weights_only=True)
+    assert state["iteration"] == 5
+
+
+def test_a_run_that_diverges_before_its_first_checkpoint_says_so(small_phantom, tmp_path):
+    trainer = Trainer(small_config("deform3dgs", 30), load_scene(small_phantom), tmp_path / "run")
+    nan_term_from(trainer, 2)
+    with pytest.raises(TrainingDiverged, match="no checkpoint was written"):
+        trainer.fit()
+    assert not (tmp_path / "run" / CHECKPOINT).exists()
+
+
+def test_a_model_with_a_value_that_is_not_finite_is_not_saved(small_phantom, tmp_path):
+    trainer = Trainer(small_config("deform3dgs", 30), load_scene(small_phantom), tmp_path / "run")
+    with torch.no_grad():
+        trainer.model.gaussians.params["sh_dc"][3, 1] = float("inf")
+    with pytest.raises(TrainingDiverged, match="iteration 0: sh_dc holds values that are not "
+                                               "finite"):
+        trainer.save()
+    assert not (tmp_path / "run" / CHECKPOINT).exists()
+
+
+def test_a_stop_during_densification_waits_for_the_end_of_the_step(small_phantom, tmp_path,
+                                                                  monkeypatch):
+    """SIGINT arriving between two per-Gaussian tensors' resizes (the third tensor of the first
+    densification): the step finishes, the checkpoint holds one Gaussian count, and the run
+    resumes from it."""
+    config = small_config("endogaussian", 40)
+    trainer = Trainer(config, load_scene(small_phantom), tmp_path / "run")
+    resize = per_gaussian._replace
+    resized: list[str] = []
+
+    def resize_and_stop(model, optimizer, edit):
+        def edit_and_stop(name, tensor, is_moment):
+            resized.append(name)
+            if len(resized) == 3:
+                os.kill(os.getpid(), signal.SIGINT)
+            return edit(name, tensor, is_moment)
+        resize(model, optimizer, edit_and_stop)
+
+    monkeypatch.setattr(per_gaussian, "_replace", resize_and_stop)
+    with pytest.raises(KeyboardInterrupt):
+        trainer.fit()
+    assert len(resized) > 3  # the resize went on past the signal
+    monkeypatch.setattr(per_gaussian, "_replace", resize)
+    state = torch.load(tmp_path / "run" / CHECKPOINT, weights_only=True)
+    assert state["iteration"] == config.densify.every
+    resumed = Trainer(config, load_scene(small_phantom), tmp_path / "run")
+    resumed.load(tmp_path / "run" / CHECKPOINT)
+    counts = {name: param.shape[0] for name, param in resumed.model.gaussians.params.items()}
+    assert len(set(counts.values())) == 1, counts
+    resumed.fit()
+    assert resumed.iteration == 40
