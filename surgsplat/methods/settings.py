@@ -58,10 +58,24 @@ class LossWeight:
     start: float = field(default=0.0, metadata={"range": "[0, 1)"})
     """The term joins the objective once this fraction of the run (of train.iterations) has
     passed, so that `--iters` moves it with the rest of the schedule; in [0, 1)."""
+    stop: float = field(default=1.0, metadata={"range": "(0, 1]"})
+    """The term leaves the objective after this fraction of the run (1 = it stays to the end);
+    greater than start."""
 
-    def start_iteration(self, iterations: int) -> int:
-        """First iteration (from 1) of a run of `iterations` steps at which the term is active."""
-        return max(round(self.start * iterations), 1)
+    def window(self, iterations: int) -> tuple[int, int]:
+        """(first, last) iteration of a run of `iterations` steps at which the term is active."""
+        return iteration_window(self.start, self.stop, iterations)
+
+    def active_at(self, iteration: int, iterations: int) -> bool:
+        """Whether the term counts at `iteration` of a run of `iterations` steps."""
+        first, last = self.window(iterations)
+        return self.weight != 0 and first <= iteration <= last
+
+
+def iteration_window(start: float, stop: float, iterations: int) -> tuple[int, int]:
+    """(first, last) iteration, counted from 1, of the stretch from fraction `start` to fraction
+    `stop` of a run of `iterations` steps."""
+    return max(round(start * iterations), 1), round(stop * iterations)
 
 
 @dataclass
@@ -108,7 +122,7 @@ class DensifyConfig:
     def window(self, iterations: int) -> tuple[int, int]:
         """(first, last) iteration of a run of `iterations` steps at which densification, pruning
         and opacity resets may run."""
-        return max(round(self.start * iterations), 1), round(self.stop * iterations)
+        return iteration_window(self.start, self.stop, iterations)
 
     def reset_period(self, iterations: int) -> int:
         """Iterations between opacity resets in a run of `iterations` steps (0 = no reset)."""

@@ -94,7 +94,8 @@ def scene_identity(scene: Scene) -> dict:
 
 
 def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str]) -> None:
-    """Every declared term has a weight and every weight names a declared term."""
+    """Every declared term has a weight, every weight names a declared term, and every term's
+    window is not empty."""
     unknown = sorted(set(weights) - set(declared))
     if unknown:
         raise SurgsplatError(f"losses.{unknown[0]}: no component of this method computes a loss "
@@ -103,6 +104,10 @@ def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str])
     if missing:
         raise SurgsplatError(f"losses.{missing[0]}: component {declared[missing[0]]!r} computes "
                              f"this term but the method gives it no weight")
+    for name, weight in weights.items():
+        if weight.stop <= weight.start:
+            raise SurgsplatError(f"losses.{name}: stop ({weight.stop}) must be greater than start "
+                                 f"({weight.start})")
 
 
 def add_component_points(context: SetupContext, colors: Tensor,
@@ -268,7 +273,7 @@ class Trainer:
                                 iteration=self.iteration)
         iterations = self.config.train.iterations
         weights = {name: w.weight for name, w in self.config.losses.items()
-                   if w.weight != 0 and self.iteration >= w.start_iteration(iterations)}
+                   if w.active_at(self.iteration, iterations)}
         terms = self.model.losses(context, frozenset(weights))
         loss = sum(weights[name] * value for name, value in terms.items())
         if not math.isfinite(float(loss)):

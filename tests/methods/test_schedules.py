@@ -13,7 +13,8 @@ def test_every_stage_of_every_preset_runs_at_any_length(name, iterations):
     config = method_config(name)
     for term, weight in config.losses.items():
         if weight.weight:
-            assert 1 <= weight.start_iteration(iterations) < iterations, term
+            first, last = weight.window(iterations)
+            assert 1 <= first < last <= iterations, term
     densify = config.densify
     first, last = densify.window(iterations)
     densifying = [k for k in range(first, last + 1) if k % densify.every == 0]
@@ -27,5 +28,5 @@ def test_stages_move_with_the_run_length():
     """LumiState's Stage 2 starts at a third of any run (it did not start at all below 1000
     iterations when it was an absolute iteration)."""
     config = method_config("lumistate")
-    assert [config.losses["retinex"].start_iteration(n) for n in (300, 800, 3000)] == \
+    assert [config.losses["retinex"].window(n)[0] for n in (300, 800, 3000)] == \
         [100, 267, 1000]

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from surgsplat.data.scene import load_scene
+from surgsplat.errors import SurgsplatError
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.losses.photometric import photometric_loss
 from surgsplat.methods.registry import PRESETS, method_config
@@ -257,3 +258,21 @@ def test_a_stop_during_densification_waits_for_the_end_of_the_step(small_phantom
     assert len(set(counts.values())) == 1, counts
     resumed.fit()
     assert resumed.iteration == 40
+
+
+def test_a_loss_term_leaves_the_objective_at_its_stop(small_phantom, tmp_path):
+    config = small_config("deform3dgs", 20)
+    config.losses["depth"].stop = 0.5
+    trainer = Trainer(config, load_scene(small_phantom), tmp_path / "run")
+    terms = {}
+    trainer.fit(lambda stats: terms.update({stats.iteration: set(stats.terms)}))
+    assert all("depth" in terms[k] for k in range(1, 11))
+    assert not any("depth" in terms[k] for k in range(11, 21))
+
+
+def test_a_loss_window_that_is_empty_is_refused(small_phantom, tmp_path):
+    config = small_config("deform3dgs", 20)
+    config.losses["depth"].start, config.losses["depth"].stop = 0.6, 0.4
+    with pytest.raises(SurgsplatError, match=r"losses.depth: stop \(0.4\) must be greater than "
+                                             r"start \(0.6\)"):
+        Trainer(config, load_scene(small_phantom), tmp_path / "run")
