@@ -111,7 +111,9 @@ def _requested_isa() -> str | None:
 @functools.cache
 def native_module() -> ModuleType | None:
     """The compiled module of the ISA variant in use, or None (with one warning) when it is not
-    built."""
+    built. Loading it flushes subnormal floats to zero, for good, in the calling thread and the
+    kernels' threads (`flush_subnormals` in csrc/module.cpp says why): the process's float
+    arithmetic then treats values below 1.2e-38 as 0."""
     portable, why = _portable()
     if portable is None:
         warnings.warn(f"surgsplat: the native CPU kernels are not available ({why}); using the "
@@ -119,7 +121,9 @@ def native_module() -> ModuleType | None:
                       "`make install` to build them.", RuntimeWarning, stacklevel=2)
         return None
     isa = _requested_isa() or available_isas()[0]
-    return _import_variant(isa)
+    module = _import_variant(isa)
+    module.flush_subnormals()
+    return module
 
 
 @functools.cache

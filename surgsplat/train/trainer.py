@@ -276,7 +276,7 @@ class Trainer:
                    if w.active_at(self.iteration, iterations)}
         terms = self.model.losses(context, frozenset(weights))
         loss = sum(weights[name] * value for name, value in terms.items())
-        if not math.isfinite(float(loss)):
+        if not math.isfinite(float(loss.detach())):
             bad = [name for name, value in terms.items() if not bool(torch.isfinite(value).all())]
             raise TrainingDiverged(f"training diverged at iteration {self.iteration}: loss "
                                    f"term{'s' if len(bad) > 1 else ''} {', '.join(bad)} not finite")

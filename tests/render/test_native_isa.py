@@ -1,7 +1,12 @@
 """Choosing the ISA variant of the native kernels: the fastest the CPU runs by default,
 SURGSPLAT_ISA or use_isa() to force one, clear errors and warnings for one that cannot run."""
 
+import math
+
 import pytest
+import torch
+
+from surgsplat.fields.gaussian_basis import deformation_channels
 
 from surgsplat.render import native
 
@@ -92,3 +97,27 @@ def test_a_build_with_only_the_portable_variant_uses_it(monkeypatch):
         monkeypatch.undo()
         native.isa_unavailable.cache_clear()
         native.use_isa(None)
+
+
+@needs_native
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_kernels_threads_flush_subnormals_to_zero(threads):
+    """Products of 1e-20 and 1e-20 (1e-40, subnormal in float32) come out as 0 from every
+    thread of a native kernel; the calling thread's torch arithmetic does the same."""
+    before = native.native_module().max_threads()
+    native.set_threads(threads)
+    try:
+        n, basis = 20000, 8
+        weights = torch.full((n, 3, basis), 1e-20)
+        offset = math.sqrt(-2.0 * math.log(1e-20))  # the basis value is 1e-20 there
+        centres = torch.full((n, basis), 0.5 - offset)
+        channels = deformation_channels(weights, centres, torch.zeros(n, basis), 0.5,
+                                        backend="native")
+        reference = deformation_channels(weights.double(), centres.double(),
+                                         torch.zeros(n, basis, dtype=torch.float64), 0.5,
+                                         backend="reference")
+        assert float(reference.min()) > 1e-40  # not zero in float64: the flush made the zeros
+        assert int(torch.count_nonzero(channels)) == 0
+        assert float(torch.tensor([1e-39]) * 1.0) == 0.0
+    finally:
+        native.set_threads(before)
