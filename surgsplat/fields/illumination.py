@@ -29,9 +29,22 @@ def brightness(image: Tensor) -> Tensor:
 
 
 def bright_channel(brightness_map: Tensor, radius: int) -> Tensor:
-    """Eq. 8's B_t: [H, W] brightness -> [H, W] its maximum over (2 radius + 1)^2 windows."""
-    size = 2 * radius + 1
-    return F.max_pool2d(brightness_map[None, None], size, stride=1, padding=radius)[0, 0]
+    """Eq. 8's B_t: [H, W] brightness -> [H, W] its maximum over (2 radius + 1)^2 windows (cut
+    at the borders): the windows' maximum along rows, then along columns, each as the running
+    maximum of 2 radius + 1 shifted views (F.max_pool2d gives the same values, 16 times slower
+    on a CPU at 640 x 512)."""
+    return _window_max(_window_max(brightness_map, radius, dim=1), radius, dim=0)
+
+
+def _window_max(values: Tensor, radius: int, dim: int) -> Tensor:
+    """[H, W] -> [H, W]: the maximum over the 2 radius + 1 entries centred on each along `dim`."""
+    length = values.shape[dim]
+    padding = (radius, radius, 0, 0) if dim == 1 else (0, 0, radius, radius)
+    padded = F.pad(values[None], padding, value=float("-inf"))[0]
+    result = padded.narrow(dim, 0, length)
+    for shift in range(1, 2 * radius + 1):
+        result = torch.maximum(result, padded.narrow(dim, shift, length))
+    return result
 
 
 def _block(inputs: int, outputs: int) -> nn.Sequential:

@@ -220,3 +220,11 @@ def test_gain_channel_is_the_modulation_and_the_transfer_loss_moves_the_mlp():
     rendered = gain.mean().expand(4, 4, 1)  # stand-in for the rasterised channel
     illumination_transfer_loss(rendered, torch.full((4, 4), 0.8), alpha, tissue).backward()
     assert component.fusion.last.bias.grad[:coeffs * 3].abs().max() > 0.0
+
+
+@pytest.mark.parametrize("radius", [0, 1, 2, 5])
+def test_the_bright_channel_is_a_max_pooling(radius):
+    brightness_map = torch.rand(37, 52, generator=torch.Generator().manual_seed(radius))
+    pooled = torch.nn.functional.max_pool2d(brightness_map[None, None], 2 * radius + 1, stride=1,
+                                            padding=radius)[0, 0]
+    assert torch.equal(bright_channel(brightness_map, radius), pooled)
