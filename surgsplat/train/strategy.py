@@ -55,6 +55,11 @@ class DensifyStrategy:
             self.visible_count = torch.zeros(n)
             self.max_radius = torch.zeros(n)
 
+    def gathers_statistics(self, iteration: int) -> bool:
+        """Whether step `iteration` feeds densification (its screen-space gradients and radii);
+        past the window nothing does, so the trainer need not compute them."""
+        return iteration <= self.last
+
     def step_post_backward(self, iteration: int, model: GaussianModel,
                            optimizer: torch.optim.Optimizer, screen_grad: Tensor,
                            radii: Tensor, opacity_factor: Callable[[], Tensor | None] = no_factor
@@ -63,7 +68,7 @@ class DensifyStrategy:
         radii [N] px; opacity_factor() gives the current [N] factor on sigmoid(opacity_logits)
         that rendering applies (None = 1); it is asked only when densifying or resetting."""
         config = self.config
-        if iteration > self.last:
+        if not self.gathers_statistics(iteration):
             return
         self._ensure_size(model.num_gaussians)
         visible = radii > 0  # masked sums, not boolean indexing: no nonzero() per step

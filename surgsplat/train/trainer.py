@@ -262,7 +262,8 @@ class Trainer:
         frame = self._next_frame()
         when = FrameTime(frame.index, frame.time)
         camera = self.model.camera_at(frame.camera, when)
-        absgrad = torch.zeros(self.model.gaussians.num_gaussians)
+        densifying = self.strategy.gathers_statistics(self.iteration)
+        absgrad = torch.zeros(self.model.gaussians.num_gaussians) if densifying else None
         try:
             output, state = self.model.render(camera, when, self.background, absgrad=absgrad)
         except NonFiniteError as err:
@@ -283,14 +284,17 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         if loss.requires_grad:  # not when every active term is a constant 0 on this frame
             loss.backward()
-        screen_grad = absgrad * (0.5 * max(camera.width, camera.height))
-        densify_weights = self.model.densify_weights(context)
-        if densify_weights is not None:
-            screen_grad = screen_grad * densify_weights
+        if densifying:  # from this step's state, before the optimiser moves it
+            screen_grad = absgrad * (0.5 * max(camera.width, camera.height))
+            densify_weights = self.model.densify_weights(context)
+            if densify_weights is not None:
+                screen_grad = screen_grad * densify_weights
         self.optimizer.step()
-        self.strategy.step_post_backward(self.iteration, self.model.gaussians, self.optimizer,
-                                         screen_grad, output.projection.radii.detach(),
-                                         self.model.opacity_factor)
+        if densifying:
+            self.strategy.step_post_backward(self.iteration, self.model.gaussians,
+                                             self.optimizer, screen_grad,
+                                             output.projection.radii.detach(),
+                                             self.model.opacity_factor)
         self.model.after_step(self.iteration)
         self.elapsed += time.perf_counter() - started
         with torch.no_grad():  # squared error over the tissue pixels and the channels
