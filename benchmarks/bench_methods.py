@@ -317,6 +317,14 @@ def phantom_dir(work: Path, key: str) -> Path:
     return folder
 
 
+def source_commit() -> str | None:
+    """The git commit of the surgsplat source this benchmark runs (None outside a checkout), so
+    that rows measured at different commits and merged into one file can be told apart."""
+    found = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                           text=True, cwd=Path(__file__).resolve().parent)
+    return found.stdout.strip() or None if found.returncode == 0 else None
+
+
 def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
              threads: int) -> dict:
     """Train and evaluate `case` (with `seed` for training and initialisation when given) in
@@ -342,7 +350,7 @@ def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
     row = {"case": case.name, "method": case.method, "phantom": case.phantom, "base": case.base,
            "settings": list(case.settings), "seed": seed, "iterations": metrics["iteration"],
            "wall_seconds": round(wall, 1), "train_cpu_seconds": round(train_cpu, 1),
-           "threads": threads,
+           "threads": threads, "commit": source_commit(),
            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     row.update({key: value for key, value in metrics.items()
                 if isinstance(value, (int, float)) and key not in row})
@@ -351,7 +359,8 @@ def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
 
 def mean_over_seeds(rows: list[dict]) -> list[dict]:
     """One row per case: each number the mean over the case's seeds, with the seeds' values in
-    `<key>_seeds` (in seed order) when there is more than one."""
+    `<key>_seeds` (in seed order) when there is more than one; so are the commits and dates
+    when the seeds' differ."""
     cases: dict[str, list[dict]] = {}
     for row in rows:
         cases.setdefault(row["case"], []).append(row)
@@ -367,6 +376,8 @@ def mean_over_seeds(rows: list[dict]) -> list[dict]:
                 row[key] = statistics.fmean(values)
                 if len(runs) > 1:
                     row[f"{key}_seeds"] = values
+            elif key in ("commit", "date") and len(set(values)) > 1:
+                row[f"{key}_seeds"] = values
         row.pop("seed", None)
         merged.append(row)
     return merged

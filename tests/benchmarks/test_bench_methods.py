@@ -20,6 +20,16 @@ def test_seeds_are_averaged_and_kept():
     assert rows["b"]["psnr_tissue"] == 20.0 and "psnr_tissue_seeds" not in rows["b"]
 
 
+def test_seeds_measured_at_different_commits_say_so():
+    runs = [{"case": "a", "seed": 0, "psnr_tissue": 30.0, "commit": "abc1234"},
+            {"case": "a", "seed": 1, "psnr_tissue": 31.0, "commit": "def5678"},
+            {"case": "b", "seed": 0, "psnr_tissue": 20.0, "commit": "abc1234"},
+            {"case": "b", "seed": 1, "psnr_tissue": 21.0, "commit": "abc1234"}]
+    rows = {row["case"]: row for row in mean_over_seeds(runs)}
+    assert rows["a"]["commit_seeds"] == ["abc1234", "def5678"]
+    assert rows["b"]["commit"] == "abc1234" and "commit_seeds" not in rows["b"]
+
+
 def test_targets_take_the_stricter_reference_and_say_whether_they_are_met():
     rows = {"base": {"psnr_tissue": 30.0, "train_seconds": 100.0},
             "other": {"psnr_tissue": 31.0},
