@@ -15,6 +15,7 @@ from collections import Counter
 from collections.abc import Callable
 
 import numpy as np
+from torch import Tensor
 
 from surgsplat.eval.articulation_metrics import ArticulationFamily
 from surgsplat.eval.component_metrics import ComponentFamily
@@ -23,6 +24,7 @@ from surgsplat.eval.geometry_families import (CollisionFamily, GaussianCentresFa
 from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
 from surgsplat.eval.render_families import (DecompositionFamily, DepthFamily, ImageFamily,
                                             OccludedFamily, SpecularFamily)
+from surgsplat.losses.photometric import masked_l1
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
@@ -57,6 +59,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     total)` is called after each test frame."""
     frames = run.scene.test_frames
     background = run.background
+    fit_test_poses(run, background)
     families = [family(run, options) for family in METRIC_FAMILIES]
     rows: dict[str, list[float]] = {}  # metric -> its value at each frame that has it
     covered: Counter[str] = Counter()  # test frames scored, per family
@@ -93,6 +96,23 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     metrics["conventions"] = {key: text for family in families
                               for key, text in family.conventions().items()} | CONVENTIONS
     return metrics
+
+
+def fit_test_poses(run: TrainedRun, background: Tensor) -> None:
+    """Fit the pose correction of every test frame to its tissue pixels (L1 of the render),
+    the model frozen, when the method offers it (`HeldOutPoses`, e.g. camera_refine)."""
+    poses = run.model.held_out_poses()
+    if poses is None:
+        return
+    for frame in run.scene.test_frames:
+        when = FrameTime(frame.index, frame.time)
+
+        def loss(frame=frame, when=when) -> Tensor:
+            camera = run.model.camera_at(frame.camera, when)
+            rgb = run.model.render(camera, when, background)[0].rgb
+            return masked_l1(rgb, frame.image, frame.tissue)
+
+        poses.fit_held_out(frame.index, frame.time, loss)
 
 
 def name_depth_unit(metrics: dict, unit: str) -> None:

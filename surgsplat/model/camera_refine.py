@@ -12,11 +12,14 @@ rotation vector omega_i, and a translation that is extent tau_i to first order).
 starts at 0, the imported pose. The native projection differentiates the render in the pose, so
 training with this component stays on the native kernels.
 
-Test frames are never trained on, so their poses are not refined by their own pixels: a test
-frame's correction is interpolated linearly in time between the corrections of the nearest
-training frames before and after it (held beyond the first and the last), with the model as
-trained; there is no test-time optimisation. The metrics state it (`frame_diagnostics`:
-"test_frame_poses" in the conventions of metrics.json).
+Test frames are never trained on. A test frame's correction starts from the linear
+interpolation in time between the corrections of the nearest training frames before and after
+it (held beyond the first and the last); evaluation then fits it to the frame's own tissue
+pixels with the model frozen (`fit_held_out`, `test_time_steps` Adam steps on their L1; 0 keeps
+the interpolation), as evaluations of pose-free NeRF and 3DGS do: the training frames'
+corrections absorb their pose errors, and the interpolation cannot know a test frame's own. Such
+a frame's score then depends on its pixels through its 6 pose numbers as well. The metrics say
+which (`frame_diagnostics`: "test_frame_poses" in the conventions of metrics.json).
 
 The loss term "pose_prior" (weight in the method's `losses`; 0 = no prior) is
 |omega_i|^2 + |tau_i|^2 of the step's frame: a pull towards the imported pose.
@@ -26,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
@@ -41,11 +45,16 @@ from surgsplat.model.timeline import interpolate_in_time
 PRIOR = "pose_prior"
 """The loss term pulling the step's frame's correction towards the imported pose."""
 
-TEST_FRAME_POSES = ("test frames are not trained on: a test frame's pose correction is "
-                    "interpolated linearly in time between the corrections of the nearest "
-                    "training frames before and after it (held beyond the first and last), "
-                    "with no test-time optimisation")
-"""What metrics.json states of the poses of the frames it scores."""
+INTERPOLATED_POSES = ("test frames are not trained on: a test frame's pose correction is "
+                      "interpolated linearly in time between the corrections of the nearest "
+                      "training frames before and after it (held beyond the first and last), "
+                      "with no test-time optimisation")
+FITTED_POSES = ("test frames are not trained on: a test frame's pose correction starts from "
+                "the linear interpolation in time between the corrections of the nearest "
+                "training frames and is then fitted to the frame's tissue pixels (L1, {steps} "
+                "Adam steps) with the model frozen (test-time pose optimisation)")
+"""What metrics.json states of the poses of the frames it scores, without and with test-time
+optimisation."""
 
 
 @dataclass
@@ -57,6 +66,10 @@ class CameraRefineConfig(ComponentConfig, kind="camera_refine"):
     scene extents for the translations."""
     lr_final: float = field(default=1e-4, metadata={"range": "(0, inf)"})
     """Learning rate at the end of the run (exponential decay from `lr`)."""
+    test_time_steps: int = field(default=100, metadata={"range": "[0, inf)"})
+    """Adam steps fitting each test frame's correction at evaluation (0 = interpolate only)."""
+    test_time_lr: float = field(default=1e-4, metadata={"range": "(0, inf)"})
+    """Adam learning rate of that fit, decaying to a tenth over its steps."""
     num_frames: int = field(default=0, metadata={"range": "[0, inf)"})
     """Frames of the clip (set when resolved for a scene)."""
 
@@ -100,6 +113,7 @@ class CameraRefine(Component):
         self.corrections = nn.Parameter(torch.zeros(config.num_frames, 6))  # [F, 6]
         self.register_buffer("trained", torch.zeros(config.num_frames, dtype=torch.bool))  # [F]
         self.register_buffer("extent", torch.ones(()))  # scene units per translation unit
+        self.held_out: dict[int, Tensor] = {}  # [6] fitted corrections of held-out frames
 
     def setup(self, context: SetupContext) -> None:
         self.trained[list(context.scene.train_indices)] = True
@@ -110,10 +124,13 @@ class CameraRefine(Component):
                            self.config.lr_final)]
 
     def correction(self, when: FrameTime) -> Tensor:
-        """[6] the correction of frame `when.index`: its own if it is a training frame, else
-        interpolated in time between the training frames' (0 when none is known)."""
+        """[6] the correction of frame `when.index`: its own if it is a training frame, the
+        fitted one of a held-out frame `fit_held_out` saw, else interpolated in time between the
+        training frames' (0 when none is known)."""
         if bool(self.trained[when.index]):
             return self.corrections[when.index]
+        if when.index in self.held_out:
+            return self.held_out[when.index]
         known = self.trained.nonzero()[:, 0]
         if known.numel() == 0:
             return torch.zeros_like(self.corrections[0])
@@ -125,6 +142,29 @@ class CameraRefine(Component):
         transform = correction_transform(self.correction(when), float(self.extent))
         pose = transform.to(camera.world_to_camera) @ camera.world_to_camera
         return dataclasses.replace(camera, world_to_camera=pose)
+
+    def held_out_poses(self) -> "CameraRefine | None":
+        return self if self.config.test_time_steps > 0 else None
+
+    def fit_held_out(self, index: int, time: float, loss: Callable[[], Tensor]) -> None:
+        """Fit held-out frame `index`'s correction (starting from the interpolation) by
+        `test_time_steps` Adam steps on `loss()`, a render of the frame with it scored against
+        its image; only the correction moves. SurgsplatError for a training frame."""
+        if bool(self.trained[index]):
+            raise SurgsplatError(f"camera_refine: frame {index} is a training frame; only "
+                                 "held-out frames are fitted at test time")
+        self.held_out.pop(index, None)
+        fitted = self.correction(FrameTime(index, time)).detach().clone().requires_grad_(True)
+        self.held_out[index] = fitted
+        steps, lr = self.config.test_time_steps, self.config.test_time_lr
+        optimizer = torch.optim.Adam([fitted], lr=lr)
+        for step in range(steps):
+            for group in optimizer.param_groups:
+                group["lr"] = lr * 0.1 ** (step / steps)
+            with torch.enable_grad():
+                (fitted.grad,) = torch.autograd.grad(loss(), [fitted])
+            optimizer.step()
+        self.held_out[index] = fitted.detach()
 
     def loss_names(self) -> tuple[str, ...]:
         return (PRIOR,)
@@ -141,7 +181,8 @@ class CameraRefine(Component):
         return Diagnostics(
             averaged={"pose_correction_deg": angle, "pose_correction_translation": shift},
             conventions={
-                "test_frame_poses": TEST_FRAME_POSES,
+                "test_frame_poses": FITTED_POSES.format(steps=self.config.test_time_steps)
+                if when.index in self.held_out else INTERPOLATED_POSES,
                 "pose_correction_deg": "angle of the rotation of the pose correction each "
                                        "test frame is rendered with, degrees, mean over test "
                                        "frames (see test_frame_poses)",

@@ -1,13 +1,15 @@
 """Capabilities that other layers ask a method's components for, as declared interfaces.
 
 A component offers one by returning an object with the interface from its contract hook
-(`Component.signed_distance_field`, `Component.relighting`, `Component.tool_motion`; usually
+(`Component.signed_distance_field`, `Component.relighting`, `Component.tool_motion`,
+`Component.held_out_poses`; usually
 itself), and `SplatModel` asks its components in order, so that no caller looks for a concrete
 class or probes for attributes; a caller that cannot do without one says so with `required`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import AbstractContextManager
 from typing import TYPE_CHECKING, Protocol, TypeVar
 
@@ -44,6 +46,16 @@ class Relighting(Protocol):
     def relit(self, source: str | int) -> AbstractContextManager[None]:
         """While the block runs, render every time under illumination `source`: UNIFORM or a
         frame index (SurgsplatError for any other)."""
+
+
+class HeldOutPoses(Protocol):
+    """Per-frame pose corrections that can be fitted, at test time, for frames that training
+    never saw."""
+
+    def fit_held_out(self, index: int, time: float, loss: Callable[[], Tensor]) -> None:
+        """Fit the correction of held-out frame `index` (at clip time `time`) so that `loss()`,
+        a render of that frame with the correction scored against its image, falls; everything
+        else stays as trained. Renders of the frame use the fitted correction from then on."""
 
 
 class ToolMotion(Protocol):

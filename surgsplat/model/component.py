@@ -70,7 +70,8 @@ from surgsplat.model.phases import Phase
 
 if TYPE_CHECKING:
     from surgsplat.data.scene import Camera, Frame
-    from surgsplat.model.capabilities import Relighting, SignedDistanceField, ToolMotion
+    from surgsplat.model.capabilities import (HeldOutPoses, Relighting, SignedDistanceField,
+                                              ToolMotion)
     from surgsplat.model.channels import ChannelDescriptor
     from surgsplat.model.gaussians import GaussianModel
     from surgsplat.model.state import GaussianState
@@ -290,6 +291,10 @@ class Component(nn.Module):
 
     def tool_motion(self) -> ToolMotion | None:
         """The rigid per-frame motion of the tool Gaussians this component offers, or None."""
+        return None
+
+    def held_out_poses(self) -> HeldOutPoses | None:
+        """The pose corrections of held-out frames this component fits at test time, or None."""
         return None
 
     def loss_names(self) -> tuple[str, ...]:

@@ -12,7 +12,8 @@ from torch import Tensor, nn
 
 from surgsplat.data.scene import Camera
 from surgsplat.errors import SurgsplatError
-from surgsplat.model.capabilities import Relighting, SignedDistanceField, ToolMotion
+from surgsplat.model.capabilities import (HeldOutPoses, Relighting, SignedDistanceField,
+                                          ToolMotion)
 from surgsplat.model.channels import BASE_CHANNELS, ChannelDescriptor
 from surgsplat.model.component import (Component, Diagnostics, FrameTime, ParamGroup,
                                        RenderContext)
@@ -137,6 +138,10 @@ class SplatModel(nn.Module):
     def tool_motion(self) -> ToolMotion | None:
         """The first component's rigid tool motion, or None."""
         return _first(c.tool_motion() for c in self.components.values())
+
+    def held_out_poses(self) -> HeldOutPoses | None:
+        """The first component's test-time pose fitting, or None."""
+        return _first(c.held_out_poses() for c in self.components.values())
 
     @torch.no_grad()
     def diagnostics(self, when: FrameTime) -> Diagnostics:
