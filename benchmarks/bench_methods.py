@@ -501,7 +501,7 @@ def main() -> None:
     missing = [case.name for case in suite.cases if case.name not in by_case]
     if args.collect or missing:
         report["note"] = ("cases not measured: " + ", ".join(missing)) if missing else \
-            "collected from the rows printed by an interrupted run"
+            "rows collected from the output a run printed (--collect)"
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out, json.dumps(report, indent=2) + "\n")
     if not args.json:
