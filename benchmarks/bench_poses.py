@@ -2,7 +2,9 @@
 phantom, registration on the CholecSeg8k clip.
 
     python benchmarks/bench_poses.py [--phantom DIR | --preset full] [--data PATH] [--work DIR]
-                                     [--out FILE] [--plot DIR]
+                                     [--out FILE] [--plot DIR] [--train-iters N] [--seeds S]
+                                     [--clip-train-iters N] [--videos DIR] [--train-only]
+                                     [--merge]
 
 Moving phantom (generated into --work unless --phantom names one): its frames and tool masks
 are imported with the true focal length and --poses sfm (no depth: the scale is the
@@ -25,6 +27,12 @@ on that copy with `camera_refine` (a per-frame pose correction learnt while trai
 weight --prior). The copy's world is SfM's (the first frame's camera), not the phantom's, so
 only the metrics in the camera's frame are compared: psnr_tissue and depth_rmse_mm.
 
+With --clip-train-iters N, `deform3dgs` (N iterations, seeds 0..S-1) is trained on the
+CholecSeg8k clip twice: on its static import (one fixed camera) and on its SfM import (no depth:
+the scale is the convention's, and the sparse points initialise the Gaussians). psnr_tissue is
+over the test frames' tissue pixels by the clip's labels; with --videos DIR each seed-0 run's
+side-by-side video (`surgsplat render`) is written to DIR/<case>/.
+
 Each import runs in its own process; seconds are its wall time and CPU seconds (user + system,
 both threads) from the operating system, and the SfM stages' wall time from scene.json. The
 machine is shared, so wall times vary with its load; CPU seconds much less.
@@ -45,7 +53,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_methods import surgsplat  # noqa: E402
-from bench_render import write_report  # noqa: E402
+from bench_render import results_path, write_report  # noqa: E402
 
 from surgsplat.data.layout import (META_FILE, POSES_FILE, Intrinsics, SceneMeta,  # noqa: E402
                                    poses_bounds)
@@ -55,8 +63,11 @@ from surgsplat.data.sfm_poses import SfmConfig, SfmWorkspace  # noqa: E402
 from surgsplat.eval.trajectory import (TrajectoryErrors, phantom_tissue_poses,  # noqa: E402
                                        rotation_angle_deg, similarity_alignment,
                                        trajectory_errors)
+from surgsplat.render.native import system_info  # noqa: E402
 
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
+SECTIONS = ("phantom", "cholecseg8k", "training", "clip_training")
+"""The parts of a report, each made by one option of this script."""
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "cholecseg8k-clip"
 CHOLEC_OPTIONS = ["--pattern", "*_endo.png", "--mask-pattern", "*_endo_watershed_mask.png",
                   "--tool-labels", "31,32", "--allow-missing-masks"]
@@ -192,6 +203,34 @@ def training_case(phantom: Path, work: Path, iterations: int, seeds: int, prior:
             "pose_prior_weight": prior, "sfm": sfm, "rows": rows}
 
 
+def clip_training_case(work: Path, iterations: int, seeds: int, videos: Path | None) -> dict:
+    """deform3dgs on the clip's static import and on its SfM import (both made by
+    `cholec_case` in `work`): psnr_tissue and ssim per seed and their means; the seed-0 runs'
+    side-by-side videos into `videos`."""
+    rows = {}
+    for name in ("static", "sfm"):
+        scene = work / f"cholec-{name}"
+        if not (scene / POSES_FILE).is_file():
+            raise SystemExit(f"{scene}: no import there; run without --train-only first")
+        per_seed = []
+        for seed in range(seeds):
+            run = work / f"run-cholec-{name}-seed{seed}"
+            shutil.rmtree(run, ignore_errors=True)
+            cpu = surgsplat("train", "--method", "deform3dgs", "--data", str(scene), "--out",
+                            str(run), "--iters", str(iterations), "--set", f"train.seed={seed}",
+                            "--set", f"init.seed={seed}")
+            surgsplat("eval", str(run))
+            metrics = json.loads((run / "metrics.json").read_text())
+            per_seed.append({"psnr_tissue": metrics["psnr_tissue"], "ssim": metrics["ssim"],
+                             "train_cpu_seconds": round(cpu, 1)})
+            if videos is not None and seed == 0:
+                surgsplat("render", str(run), "--out", str(videos / name))
+        rows[name] = {key: float(np.mean([row[key] for row in per_seed]))
+                      for key in per_seed[0]} | {"per_seed": per_seed}
+    return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds, "rows": rows,
+            "psnr_tissue_gain": rows["sfm"]["psnr_tissue"] - rows["static"]["psnr_tissue"]}
+
+
 def plot_trajectory(estimated: np.ndarray, world: np.ndarray, tissue: np.ndarray,
                     path: Path) -> None:
     """Camera centres over the frames (x, y, z in mm): the estimate aligned to the tissue
@@ -234,8 +273,13 @@ def main() -> None:
                         "and refined SfM poses for this many iterations")
     parser.add_argument("--seeds", type=int, default=1, help="training seeds 0..S-1")
     parser.add_argument("--prior", type=float, default=0.1, help="pose_prior weight")
+    parser.add_argument("--clip-train-iters", type=int, help="also train deform3dgs on the "
+                        "clip's static and SfM imports for this many iterations")
+    parser.add_argument("--videos", type=Path, help="folder for the clip runs' videos")
     parser.add_argument("--train-only", action="store_true",
-                        help="only the training comparison (no imports, no clip)")
+                        help="only the training comparisons (no imports: those in --work)")
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the sections of the results file that this run does not make")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     phantom = args.phantom
@@ -252,8 +296,19 @@ def main() -> None:
     if args.train_iters:
         result["training"] = training_case(phantom, args.work, args.train_iters, args.seeds,
                                            args.prior)
+    if args.clip_train_iters:
+        result["clip_training"] = clip_training_case(args.work, args.clip_train_iters,
+                                                     args.seeds, args.videos)
     print(json.dumps(result, indent=2))
-    print(f"written to {write_report('bench_poses', result, args.out)}")
+    out = args.out or results_path("bench_poses", system_info())
+    if args.merge and out.is_file():
+        previous = json.loads(out.read_text())
+        commands = previous.get("commands", [previous["command"]])
+        result = {key: value for key, value in previous.items()
+                  if key in SECTIONS and key not in result} | result
+        result["commands"] = commands + [" ".join(["python", "benchmarks/bench_poses.py",
+                                                   *sys.argv[1:]])]
+    print(f"written to {write_report('bench_poses', result, out)}")
 
 
 if __name__ == "__main__":

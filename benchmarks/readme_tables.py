@@ -241,6 +241,15 @@ def poses_table(report: dict) -> str:
         for name, row in training["rows"].items():
             lines.append(f"| {labels[name]} | {row['psnr_tissue']:.2f} "
                          f"| {row['depth_rmse_mm']:.3f} | {row['train_cpu_seconds']:.0f} |")
+    clip = report.get("clip_training")
+    if clip is not None:
+        lines += ["", f"| {clip['method']}, {clip['iterations']} iterations, {clip['seeds']} "
+                      "seed(s), CholecSeg8k clip | psnr_tissue | ssim | train CPU s |",
+                  "|---|---|---|---|"]
+        labels = {"static": "static camera (every pose the first)", "sfm": "SfM poses"}
+        for name, row in clip["rows"].items():
+            lines.append(f"| {labels[name]} | {row['psnr_tissue']:.2f} | {row['ssim']:.3f} "
+                         f"| {row['train_cpu_seconds']:.0f} |")
     return "\n".join(lines)
 
 
