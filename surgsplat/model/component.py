@@ -85,6 +85,13 @@ class FrameTime:
     index: int  # frame index in the clip (a held-out frame's own index at test time)
     time: float  # index / number of frames, in [0, 1)
     tissue_only: bool = False  # render mode: components that separate the tool leave it out
+    losses: frozenset[str] | None = None
+    """The loss terms a training step's render serves (a component may leave out the channels
+    only other terms need); None for every other render, which holds every channel."""
+
+    def serves(self, term: str) -> bool:
+        """Whether a render of this moment must hold what loss term `term` reads."""
+        return self.losses is None or term in self.losses
 
 
 @dataclass(frozen=True)

@@ -390,12 +390,23 @@ class LumiState(Component):
                         when: FrameTime) -> dict[str, Tensor]:
         """The reflectance: the canonical (unmodulated) coefficients' colour [N, 3]; the gain
         [N, 1]: the rendered (modulated, exposed) colour's channel sum over the reflectance's,
-        i.e. the illumination each Gaussian carries."""
+        i.e. the illumination each Gaussian carries. A training step's render holds each only
+        when a loss of the step reads it (the reflectance "retinex", the gain
+        "illumination_transfer"): outside Stage 2 they would cost the rasteriser 4 channels for
+        nothing."""
+        channels = {}
+        wants_gain = when.serves("illumination_transfer")
+        if not (when.serves("retinex") or wants_gain):
+            return channels
         reflectance = sh_colour(state.sh_degree, gaussians.sh_coeffs(), state.means,
                                 camera.world_to_camera)  # [N, 3]
-        lit = sh_colour(state.sh_degree, state.sh, state.means, camera.world_to_camera)
-        gain = lit.sum(dim=1) / reflectance.sum(dim=1).clamp_min(GAIN_FLOOR)  # [N]
-        return {REFLECTANCE: reflectance, "gain": gain[:, None]}
+        if when.serves("retinex"):
+            channels[REFLECTANCE] = reflectance
+        if wants_gain:
+            lit = sh_colour(state.sh_degree, state.sh, state.means, camera.world_to_camera)
+            gain = lit.sum(dim=1) / reflectance.sum(dim=1).clamp_min(GAIN_FLOOR)  # [N]
+            channels["gain"] = gain[:, None]
+        return channels
 
     def channel_descriptors(self) -> tuple[ChannelDescriptor, ...]:
         return (ChannelDescriptor(REFLECTANCE, ChannelKind.COLOUR),

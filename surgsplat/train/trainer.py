@@ -260,7 +260,10 @@ class Trainer:
         self.iteration += 1
         self._update_learning_rates()
         frame = self._next_frame()
-        when = FrameTime(frame.index, frame.time)
+        iterations = self.config.train.iterations
+        weights = {name: w.weight for name, w in self.config.losses.items()
+                   if w.active_at(self.iteration, iterations)}
+        when = FrameTime(frame.index, frame.time, losses=frozenset(weights))
         camera = self.model.camera_at(frame.camera, when)
         densifying = self.strategy.gathers_statistics(self.iteration)
         absgrad = torch.zeros(self.model.gaussians.num_gaussians) if densifying else None
@@ -272,10 +275,7 @@ class Trainer:
         context = RenderContext(frame=frame, when=when, camera=camera, output=output,
                                 state=state, gaussians=self.model.gaussians,
                                 iteration=self.iteration)
-        iterations = self.config.train.iterations
-        weights = {name: w.weight for name, w in self.config.losses.items()
-                   if w.active_at(self.iteration, iterations)}
-        terms = self.model.losses(context, frozenset(weights))
+        terms = self.model.losses(context, when.losses)
         loss = sum(weights[name] * value for name, value in terms.items())
         if not math.isfinite(float(loss.detach())):
             bad = [name for name, value in terms.items() if not bool(torch.isfinite(value).all())]

@@ -242,6 +242,32 @@ def test_gain_channel_is_the_modulation_and_the_transfer_loss_moves_the_mlp():
     assert component.fusion.last.bias.grad[:coeffs * 3].abs().max() > 0.0
 
 
+@pytest.mark.parametrize("losses, channels", [
+    (None, {"reflectance", "gain"}),  # a render for its own sake: every channel
+    (frozenset({"photometric", "depth"}), set()),  # Stage 1
+    (frozenset({"photometric", "retinex", "bright_channel", "illumination_transfer"}),
+     {"reflectance", "gain"}),  # Stage 2 with the tie
+    (frozenset({"photometric", "retinex", "bright_channel"}), {"reflectance"}),  # tie stopped
+])
+def test_a_training_render_holds_only_the_channels_its_losses_read(losses, channels):
+    component = LumiState(LumiStateConfig(num_frames=2, map_height=8, map_width=8)).eval()
+    component.known[0] = True
+    sh = torch.rand(6, 4, 3)
+    state = GaussianState(means=torch.randn(6, 3), scales=torch.ones(6, 3),
+                          quats=torch.ones(6, 4), opacities=torch.ones(6), sh=sh, sh_degree=1)
+
+    class Canonical:
+        def sh_coeffs(self):
+            return sh
+
+    class Camera:
+        world_to_camera = torch.eye(4)
+
+    when = FrameTime(0, 0.0, losses=losses)
+    rendered = component.render_channels(state, Canonical(), Camera(), when)
+    assert set(rendered) == channels
+
+
 @pytest.mark.parametrize("radius", [0, 1, 2, 5])
 def test_the_bright_channel_is_a_max_pooling(radius):
     brightness_map = torch.rand(37, 52, generator=torch.Generator().manual_seed(radius))
