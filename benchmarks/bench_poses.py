@@ -183,50 +183,48 @@ def training_case(phantom: Path, work: Path, iterations: int, seeds: int, prior:
               "--set", f"losses.pose_prior.weight={prior}"]
     cases = {"true_poses": (phantom, []), "sfm_poses": (sfm_dir, []),
              "sfm_poses_refined": (sfm_dir, refine)}
+    rows = trained_rows(cases, work, "", iterations, seeds, ("psnr_tissue", "depth_rmse_mm"))
+    return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds,
+            "pose_prior_weight": prior, "sfm": sfm, "rows": rows}
+
+
+def trained_rows(cases: dict[str, tuple[Path, list[str]]], work: Path, prefix: str,
+                 iterations: int, seeds: int, keys: tuple[str, ...],
+                 videos: Path | None = None) -> dict:
+    """deform3dgs trained on each case's (scene, extra options) for `iterations`, seeds
+    0..S-1, in work/run-<prefix><case>-seed<S>, and evaluated: the metrics `keys` and the train
+    CPU seconds per seed and their means, per case; each seed-0 run's videos into
+    videos/<case> when given."""
     rows = {}
     for name, (scene, options) in cases.items():
         per_seed = []
         for seed in range(seeds):
-            run = work / f"run-{name}-seed{seed}"
+            run = work / f"run-{prefix}{name}-seed{seed}"
             shutil.rmtree(run, ignore_errors=True)
             cpu = surgsplat("train", "--method", "deform3dgs", "--data", str(scene), "--out",
                             str(run), "--iters", str(iterations), "--set", f"train.seed={seed}",
                             "--set", f"init.seed={seed}", *options)
             surgsplat("eval", str(run))
             metrics = json.loads((run / "metrics.json").read_text())
-            per_seed.append({"psnr_tissue": metrics["psnr_tissue"],
-                             "depth_rmse_mm": metrics["depth_rmse_mm"],
-                             "train_cpu_seconds": round(cpu, 1)})
+            per_seed.append({key: metrics[key] for key in keys}
+                            | {"train_cpu_seconds": round(cpu, 1)})
+            if videos is not None and seed == 0:
+                surgsplat("render", str(run), "--out", str(videos / name))
         rows[name] = {key: float(np.mean([row[key] for row in per_seed]))
                       for key in per_seed[0]} | {"per_seed": per_seed}
-    return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds,
-            "pose_prior_weight": prior, "sfm": sfm, "rows": rows}
+    return rows
 
 
 def clip_training_case(work: Path, iterations: int, seeds: int, videos: Path | None) -> dict:
     """deform3dgs on the clip's static import and on its SfM import (both made by
     `cholec_case` in `work`): psnr_tissue and ssim per seed and their means; the seed-0 runs'
     side-by-side videos into `videos`."""
-    rows = {}
-    for name in ("static", "sfm"):
-        scene = work / f"cholec-{name}"
+    cases = {name: (work / f"cholec-{name}", []) for name in ("static", "sfm")}
+    for scene, _ in cases.values():
         if not (scene / POSES_FILE).is_file():
             raise SystemExit(f"{scene}: no import there; run without --train-only first")
-        per_seed = []
-        for seed in range(seeds):
-            run = work / f"run-cholec-{name}-seed{seed}"
-            shutil.rmtree(run, ignore_errors=True)
-            cpu = surgsplat("train", "--method", "deform3dgs", "--data", str(scene), "--out",
-                            str(run), "--iters", str(iterations), "--set", f"train.seed={seed}",
-                            "--set", f"init.seed={seed}")
-            surgsplat("eval", str(run))
-            metrics = json.loads((run / "metrics.json").read_text())
-            per_seed.append({"psnr_tissue": metrics["psnr_tissue"], "ssim": metrics["ssim"],
-                             "train_cpu_seconds": round(cpu, 1)})
-            if videos is not None and seed == 0:
-                surgsplat("render", str(run), "--out", str(videos / name))
-        rows[name] = {key: float(np.mean([row[key] for row in per_seed]))
-                      for key in per_seed[0]} | {"per_seed": per_seed}
+    rows = trained_rows(cases, work, "cholec-", iterations, seeds, ("psnr_tissue", "ssim"),
+                        videos)
     return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds, "rows": rows,
             "psnr_tissue_gain": rows["sfm"]["psnr_tissue"] - rows["static"]["psnr_tissue"]}
 

@@ -1,8 +1,11 @@
 """LumiState: the illumination UNet, the Retinex losses, Eq. 5's interpolation, training in two
 stages, checkpoints, relighting, the decomposition metrics and the render channels."""
 
+from types import SimpleNamespace
+
 import pytest
 import torch
+from torch import Tensor
 
 from surgsplat.pipeline.render import write_run_videos
 from surgsplat.data.scene import load_scene, read_image
@@ -203,6 +206,15 @@ def test_corner_interpolation_matches_the_gather_in_values_and_gradients():
     torch.testing.assert_close(fast_grad, plain_grad, atol=1e-12, rtol=1e-12)
 
 
+def six_gaussians_seen_from_the_origin(sh: Tensor):
+    """(a GaussianState of 6 Gaussians with SH coefficients sh [6, 4, 3] (degree 1), stand-ins
+    of the canonical Gaussians holding the same coefficients and of a camera at the origin)."""
+    state = GaussianState(means=torch.randn(6, 3), scales=torch.ones(6, 3),
+                          quats=torch.ones(6, 4), opacities=torch.ones(6), sh=sh, sh_degree=1)
+    canonical = SimpleNamespace(sh_coeffs=lambda: sh)
+    return state, canonical, SimpleNamespace(world_to_camera=torch.eye(4))
+
+
 def test_gain_channel_is_the_modulation_and_the_transfer_loss_moves_the_mlp():
     """Issue 28, hypothesis 13: the modulation must carry L_t for the reflectance to lose the
     static shading. The gain channel is each Gaussian's rendered colour over its reflectance
@@ -216,18 +228,9 @@ def test_gain_channel_is_the_modulation_and_the_transfer_loss_moves_the_mlp():
         component.fusion.last.bias[:coeffs * 3] = torch.log(torch.tensor(0.4))
     sh = torch.zeros(6, 4, 3)
     sh[:, 0] = torch.rand(6, 3) + 0.5  # colours well above the floor
-    state = GaussianState(means=torch.randn(6, 3), scales=torch.ones(6, 3),
-                          quats=torch.ones(6, 4), opacities=torch.ones(6), sh=sh, sh_degree=1)
-
-    class Canonical:
-        def sh_coeffs(self):
-            return sh
-
-    class Camera:
-        world_to_camera = torch.eye(4)
-
+    state, canonical, camera = six_gaussians_seen_from_the_origin(sh)
     modulated = component.transform(state, None, FrameTime(0, 0.0))
-    gain = component.render_channels(modulated, Canonical(), Camera(), FrameTime(0, 0.0))["gain"]
+    gain = component.render_channels(modulated, canonical, camera, FrameTime(0, 0.0))["gain"]
     bound = component.config.max_log_gain  # sigma passes through bound tanh(sigma / bound)
     expected = float(torch.exp(bound * torch.tanh(torch.log(torch.tensor(0.4)) / bound)))
     torch.testing.assert_close(gain, torch.full((6, 1), expected), atol=1e-5, rtol=1e-5)
@@ -252,19 +255,9 @@ def test_gain_channel_is_the_modulation_and_the_transfer_loss_moves_the_mlp():
 def test_a_training_render_holds_only_the_channels_its_losses_read(losses, channels):
     component = LumiState(LumiStateConfig(num_frames=2, map_height=8, map_width=8)).eval()
     component.known[0] = True
-    sh = torch.rand(6, 4, 3)
-    state = GaussianState(means=torch.randn(6, 3), scales=torch.ones(6, 3),
-                          quats=torch.ones(6, 4), opacities=torch.ones(6), sh=sh, sh_degree=1)
-
-    class Canonical:
-        def sh_coeffs(self):
-            return sh
-
-    class Camera:
-        world_to_camera = torch.eye(4)
-
+    state, canonical, camera = six_gaussians_seen_from_the_origin(torch.rand(6, 4, 3))
     when = FrameTime(0, 0.0, losses=losses)
-    rendered = component.render_channels(state, Canonical(), Camera(), when)
+    rendered = component.render_channels(state, canonical, camera, when)
     assert set(rendered) == channels
 
 
