@@ -351,6 +351,28 @@ def articulation_table(report: dict) -> str:
     return "\n".join(lines)
 
 
+def camera_grads_table(report: dict) -> str:
+    """Markdown for one bench_camera_grads report: projection forward and backward with and
+    without the camera's gradients, and their accuracy against the float64 reference."""
+    system, accuracy = report["system"], report["accuracy"]
+    lines = [
+        f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}, "
+        f"{report['threads']} threads), {report['width']}x{report['height']}, median of "
+        f"{report['repeats']} alternations, {report['date'][:10]}:",
+        "",
+        "| Gaussians | without camera gradients ms | with ms | ratio |",
+        "|---|---|---|---|",
+    ]
+    for row in report["timing"]:
+        lines.append(f"| {row['gaussians']} | {row['without_camera_ms']:.1f} "
+                     f"| {row['with_camera_ms']:.1f} | {row['ratio']:.3f} |")
+    lines += ["", f"Native float32 camera gradients against the float64 reference "
+                  f"({accuracy['gaussians']} Gaussians), largest error over the largest entry: "
+                  f"K {accuracy['K_relative_error']:.1e}, world_to_camera "
+                  f"{accuracy['world_to_camera_relative_error']:.1e}."]
+    return "\n".join(lines)
+
+
 def onnx_models_table(report: dict) -> str:
     """Markdown for one bench_onnx_models report: seconds per frame through ONNX Runtime and
     through the exporting PyTorch network, per input size and batch."""
@@ -432,7 +454,7 @@ RENDERERS = {"bench_render": render_table, "bench_train": train_table,
              "bench_long_clip_validation": long_clip_validation_table,
              "bench_articulation": articulation_table,
              "bench_faults": faults_table, "bench_onnx_models": onnx_models_table,
-             "bench_poses": poses_table}
+             "bench_poses": poses_table, "bench_camera_grads": camera_grads_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A README region of one bench_methods suite, e.g. bench_methods_endoplanar."""
 
