@@ -166,7 +166,9 @@ class CameraRefine(Component):
             for group in optimizer.param_groups:
                 group["lr"] = lr * 0.1 ** (step / steps)
             with torch.enable_grad():
-                (fitted.grad,) = torch.autograd.grad(loss(), [fitted])
+                (fitted.grad,) = torch.autograd.grad(loss(), [fitted], allow_unused=True)
+            if fitted.grad is None:  # nothing of the render depends on the pose: nothing to fit
+                break
             optimizer.step()
         self.held_out[index] = fitted.detach()
 
