@@ -104,13 +104,23 @@ def face_frames(corners: Tensor) -> Tensor:
 def to_face_local(points: Tensor, corners: Tensor) -> Tensor:
     """World points [..., 3] -> their coordinates (x, y, z) [..., 3] in the frames of faces
     corners [..., 3, 3] (origin v0)."""
-    frame = face_frames(corners)
-    return ((points - corners[..., 0, :]).unsqueeze(-2) @ frame).squeeze(-2)
+    return to_local(points, corners[..., 0, :], face_frames(corners))
 
 
 def from_face_local(local: Tensor, corners: Tensor) -> Tensor:
     """Face coordinates [..., 3] in the frames of faces corners [..., 3, 3] -> world points."""
-    return corners[..., 0, :] + (face_frames(corners) @ local.unsqueeze(-1)).squeeze(-1)
+    return to_world(local, corners[..., 0, :], face_frames(corners))
+
+
+def to_local(points: Tensor, origin: Tensor, frame: Tensor) -> Tensor:
+    """World points [..., 3] -> coordinates [..., 3] in frames [..., 3, 3] (axes as columns)
+    placed at origin [..., 3]."""
+    return ((points - origin).unsqueeze(-2) @ frame).squeeze(-2)
+
+
+def to_world(local: Tensor, origin: Tensor, frame: Tensor) -> Tensor:
+    """The inverse of `to_local`."""
+    return origin + (frame @ local.unsqueeze(-1)).squeeze(-1)
 
 
 def planar_corners(corners: Tensor) -> tuple[Tensor, Tensor]:
@@ -128,10 +138,14 @@ def inradius(corners: Tensor) -> Tensor:
 
 
 def clip_to_face(local: Tensor, corners: Tensor, band: Tensor) -> Tensor:
-    """Face coordinates [..., 3] clipped into face corners [..., 3, 3]: the in-plane point's
-    barycentric coordinates clipped to [0, 1] and renormalised, z clipped to [-band, band]
-    (band [...])."""
-    p1, p2 = planar_corners(corners)
+    """Face coordinates [..., 3] clipped into face corners [..., 3, 3]: see `clip_in_triangle`."""
+    return clip_in_triangle(local, *planar_corners(corners), band)
+
+
+def clip_in_triangle(local: Tensor, p1: Tensor, p2: Tensor, band: Tensor) -> Tensor:
+    """Face coordinates [..., 3] clipped into the triangle (0, p1, p2) of 2D face coordinates
+    p1, p2 [..., 2]: the in-plane point's barycentric coordinates clipped to [0, 1] and
+    renormalised, z clipped to [-band, band] (band [...])."""
     point = local[..., :2]
     double_area = p1[..., 0] * p2[..., 1] - p1[..., 1] * p2[..., 0]
     lambda1 = (point[..., 0] * p2[..., 1] - point[..., 1] * p2[..., 0]) / double_area
@@ -141,6 +155,30 @@ def clip_to_face(local: Tensor, corners: Tensor, band: Tensor) -> Tensor:
     planar = weights[..., 1:2] * p1 + weights[..., 2:3] * p2
     offset = torch.maximum(torch.minimum(local[..., 2], band), -band)
     return torch.cat([planar, offset.unsqueeze(-1)], dim=-1)
+
+
+@dataclass
+class FaceGeometry:
+    """What the clips need of each face of a mesh, computed once per mesh: origin v0 [F, 3],
+    frame [F, 3, 3] (`face_frames`), corners v1, v2 in 2D face coordinates p1, p2 [F, 2], and
+    inradius [F]."""
+
+    origin: Tensor
+    frame: Tensor
+    p1: Tensor
+    p2: Tensor
+    inradius: Tensor
+
+    @classmethod
+    def of(cls, corners: Tensor) -> "FaceGeometry":
+        """Of the faces corners [F, 3, 3]."""
+        return cls(corners[:, 0], face_frames(corners), *planar_corners(corners),
+                   inradius(corners))
+
+    def __getitem__(self, index: Tensor) -> "FaceGeometry":
+        """The geometry of faces `index` [N] (gathered)."""
+        return FaceGeometry(self.origin[index], self.frame[index], self.p1[index],
+                            self.p2[index], self.inradius[index])
 
 
 def clip_tilt(quats: Tensor, normals: Tensor, max_tilt: float) -> Tensor:
@@ -194,6 +232,7 @@ class MeshAnchor(Component):
         # module held directly would become a submodule, its state saved twice)
         self._surface: tuple[SignedDistanceField, ...] = ()
         self._method: tuple[Component, ...] = ()
+        self._geometry: FaceGeometry | None = None  # of the current mesh, made when first asked
 
     def bind(self, components: Mapping[str, Component]) -> None:
         fields = [c.signed_distance_field() for c in components.values()]
@@ -209,6 +248,7 @@ class MeshAnchor(Component):
             saved = state_dict.get(prefix + name)
             if saved is not None:
                 setattr(self, name, torch.empty_like(saved))
+        self._geometry = None
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     # ---- the mesh and the anchors ----
@@ -226,6 +266,7 @@ class MeshAnchor(Component):
         self.vertices = vertices
         self.faces = faces[double_area > 1e-6 * cell * cell]
         self.cell.fill_(cell)
+        self._geometry = None
 
     @torch.no_grad()
     def anchor(self, gaussians: GaussianModel, rows: Tensor | None = None) -> None:
@@ -242,20 +283,22 @@ class MeshAnchor(Component):
         anchors = gaussians.buffer_dict[ANCHOR_KEY]
         return ((anchors < 0) | (anchors >= self.faces.shape[0])).nonzero()[:, 0]
 
-    def face_corners(self, gaussians: GaussianModel) -> Tensor:
-        """[N, 3, 3] the corners of every Gaussian's face."""
-        return self.vertices[self.faces[gaussians.buffer_dict[ANCHOR_KEY].long()]]
+    def face_geometry(self, gaussians: GaussianModel) -> FaceGeometry:
+        """The geometry of every Gaussian's face [N, ...] (the mesh's, computed once per mesh)."""
+        if self._geometry is None:
+            self._geometry = FaceGeometry.of(self.vertices[self.faces])
+        return self._geometry[gaussians.buffer_dict[ANCHOR_KEY].long()]
 
-    def face_radius(self, corners: Tensor) -> Tensor:
+    def face_radius(self, faces: FaceGeometry) -> Tensor:
         """[N] r_k of the clips: the inradius, at least min_face_radius cells."""
-        return inradius(corners).clamp_min(self.config.min_face_radius * float(self.cell))
+        return faces.inradius.clamp_min(self.config.min_face_radius * float(self.cell))
 
-    def _clipped_means(self, means: Tensor, corners: Tensor, radius: Tensor) -> Tensor:
-        """Centres [N, 3] clipped into their faces corners [N, 3, 3] and normal bands of
-        offset_band face radii radius [N] (forward value only; see `straight_through`)."""
-        local = clip_to_face(to_face_local(means, corners), corners,
-                             self.config.offset_band * radius)
-        return from_face_local(local, corners)
+    def _clipped_means(self, means: Tensor, faces: FaceGeometry, radius: Tensor) -> Tensor:
+        """Centres [N, 3] clipped into their faces and normal bands of offset_band face radii
+        radius [N] (forward value only; see `straight_through`)."""
+        local = clip_in_triangle(to_local(means, faces.origin, faces.frame), faces.p1, faces.p2,
+                                 self.config.offset_band * radius)
+        return to_world(local, faces.origin, faces.frame)
 
     def canonical_means(self, gaussians: GaussianModel) -> Tensor | None:
         """[N, 3] the anchored canonical centres (tool Gaussians' as they are), straight-through
@@ -265,8 +308,8 @@ class MeshAnchor(Component):
         if self.faces.shape[0] == 0:
             return None
         means = gaussians.params["means"]
-        corners = self.face_corners(gaussians)
-        clipped = self._clipped_means(means, corners, self.face_radius(corners))
+        faces = self.face_geometry(gaussians)
+        clipped = self._clipped_means(means, faces, self.face_radius(faces))
         tissue = tissue_members(self._method, gaussians)
         if tissue is not None:
             clipped = torch.where(tissue[:, None], clipped, means)
@@ -297,14 +340,13 @@ class MeshAnchor(Component):
         if self.faces.shape[0] == 0:
             return state
         config = self.config
-        corners = self.face_corners(gaussians)  # [N, 3, 3]
-        radius = self.face_radius(corners)  # [N]
-        means = self._clipped_means(state.means, corners, radius)
+        faces = self.face_geometry(gaussians)
+        radius = self.face_radius(faces)  # [N]
+        means = self._clipped_means(state.means, faces, radius)
         in_face, normal = config.scale_limit, config.scale_limit * config.normal_scale_ratio
         limits = radius[:, None] * torch.tensor([in_face, in_face, normal])  # [N, 3]
         scales = torch.minimum(state.scales, limits)
-        quats = clip_tilt(state.quats, face_frames(corners)[..., 2],
-                          math.radians(config.max_tilt_deg))
+        quats = clip_tilt(state.quats, faces.frame[..., 2], math.radians(config.max_tilt_deg))
         tissue = tissue_members(self._method, gaussians)
         if tissue is not None:
             means = torch.where(tissue[:, None], means, state.means)

@@ -144,8 +144,8 @@ def within_band(anchor: MeshAnchor, gaussians: GaussianModel, state: GaussianSta
     """Every anchored centre lies in its face's triangle and normal band, with scales and tilt
     within their limits (tolerance: scene units)."""
     config = anchor.config
-    corners = anchor.face_corners(gaussians).double()
-    radius = anchor.face_radius(corners)
+    corners = anchor.vertices[anchor.faces[gaussians.buffer_dict[ANCHOR_KEY]]].double()
+    radius = inradius(corners).clamp_min(config.min_face_radius * float(anchor.cell))
     local = to_face_local(state.means.detach().double(), corners)
     assert torch.all(local[:, 2].abs() <= config.offset_band * radius + tolerance)
     # inside the triangle: the distance to each edge's line (barycentric coordinate times the
