@@ -232,7 +232,7 @@ class MeshAnchor(Component):
         # module held directly would become a submodule, its state saved twice)
         self._surface: tuple[SignedDistanceField, ...] = ()
         self._method: tuple[Component, ...] = ()
-        self._geometry: FaceGeometry | None = None  # of the current mesh, made when first asked
+        self._geometry = FaceGeometry.of(torch.zeros(0, 3, 3))  # of the current mesh's faces
 
     def bind(self, components: Mapping[str, Component]) -> None:
         fields = [c.signed_distance_field() for c in components.values()]
@@ -248,8 +248,8 @@ class MeshAnchor(Component):
             saved = state_dict.get(prefix + name)
             if saved is not None:
                 setattr(self, name, torch.empty_like(saved))
-        self._geometry = None
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._geometry = FaceGeometry.of(self.vertices[self.faces])
 
     # ---- the mesh and the anchors ----
     @torch.no_grad()
@@ -266,7 +266,7 @@ class MeshAnchor(Component):
         self.vertices = vertices
         self.faces = faces[double_area > 1e-6 * cell * cell]
         self.cell.fill_(cell)
-        self._geometry = None
+        self._geometry = FaceGeometry.of(self.vertices[self.faces])
 
     @torch.no_grad()
     def anchor(self, gaussians: GaussianModel, rows: Tensor | None = None) -> None:
@@ -284,9 +284,8 @@ class MeshAnchor(Component):
         return ((anchors < 0) | (anchors >= self.faces.shape[0])).nonzero()[:, 0]
 
     def face_geometry(self, gaussians: GaussianModel) -> FaceGeometry:
-        """The geometry of every Gaussian's face [N, ...] (the mesh's, computed once per mesh)."""
-        if self._geometry is None:
-            self._geometry = FaceGeometry.of(self.vertices[self.faces])
+        """The geometry of every Gaussian's face [N, ...] (the mesh's, computed when the mesh is
+        extracted or loaded)."""
         return self._geometry[gaussians.buffer_dict[ANCHOR_KEY].long()]
 
     def face_radius(self, faces: FaceGeometry) -> Tensor:
