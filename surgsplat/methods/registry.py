@@ -143,7 +143,12 @@ def drawer() -> MethodConfig:
     """Endo-GSG's components and weights with its Gaussians anchored on the SDF's mesh (first,
     so that the deformation moves the anchored Gaussians) and PhysioSplat's tool field (weight
     of its mask loss as in `physiosplat`), whose tool Gaussians are neither anchored nor faded
-    by the SDF."""
+    by the SDF. Leave-one-out at full length (full phantom, 3000 iterations, seed 0;
+    psnr_tissue): drawer 38.13 (36.80 with seed 1), without the anchor 38.79, without the tool
+    field 36.90, endogsg 38.99 (39.27). The anchor's clips (centres into their face's band,
+    scales and tilt limited) cost about 2 dB, the price of a surface a simulator can use; the
+    tool field costs about 0.2 dB, and raises the visible depth RMSE from 0.06 to 0.23 mm
+    (issue 28)."""
     method = endogsg()
     method.name = "drawer"
     deformation = method.components.pop("deformation")
