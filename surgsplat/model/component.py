@@ -21,8 +21,7 @@ same way and never name one. A component declares:
   asking twice gives the same Gaussians. State changes happen in `setup`, in `before_render`
   (once per render, before any transform: e.g. extracting a first mesh, or encoding a training
   frame once for the step's transform and losses) and in `after_step`;
-- what the rasteriser receives of the Gaussians (`rasterised_state`: the same values, with
-  gradients it may filter);
+- which Gaussians a render keeps from which pixels' gradients (`pixel_gate`);
 - the per-Gaussian channels it adds to a render (`render_channels`) and what it derives from the
   rendered maps (`finish_render`: e.g. an unbiased depth, an exposure gain); the channels to
   show, each with its descriptor (`channel_descriptors`, see `model.channels`), which videos,
@@ -75,6 +74,7 @@ if TYPE_CHECKING:
     from surgsplat.model.channels import ChannelDescriptor
     from surgsplat.model.gaussians import GaussianModel
     from surgsplat.model.state import GaussianState
+    from surgsplat.render.rasterize import PixelGate
     from surgsplat.render.render import RenderOutput
 
 
@@ -88,6 +88,9 @@ class FrameTime:
     losses: frozenset[str] | None = None
     """The loss terms a training step's render serves (a component may leave out the channels
     only other terms need); None for every other render, which holds every channel."""
+    tool_pixels: Tensor | None = field(default=None, compare=False)
+    """[H, W] bool: a training step's frame's tool mask (the pixels that show no tissue); None
+    for every other render."""
 
     def serves(self, term: str) -> bool:
         """Whether a render of this moment must hold what loss term `term` reads."""
@@ -262,12 +265,11 @@ class Component(nn.Module):
         pure: it changes no parameter, buffer or attribute (see `before_render`)."""
         return state
 
-    def rasterised_state(self, state: GaussianState) -> GaussianState:
-        """The Gaussians as the rasteriser receives them: the same values as `state`, whose
-        gradients the component may filter (e.g. the tool field drops the render's gradients
-        to tissue hidden behind the tool). Losses computed on the state itself, not through
-        the render, keep their gradients."""
-        return state
+    def pixel_gate(self, gaussians: GaussianModel, when: FrameTime) -> PixelGate | None:
+        """Which Gaussians a render at `when` keeps from which pixels' gradients (e.g. the tool
+        field keeps tissue from the frame's tool pixels), or None. At most one component of a
+        model gates."""
+        return None
 
     def render_channels(self, state: GaussianState, gaussians: GaussianModel, camera: Camera,
                         when: FrameTime) -> dict[str, Tensor]:

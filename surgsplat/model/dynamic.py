@@ -77,8 +77,8 @@ class SplatModel(nn.Module):
     def render(self, camera: Camera, when: FrameTime, background: Tensor | None = None,
                absgrad: Tensor | None = None) -> tuple[RenderOutput, GaussianState]:
         """The view of `camera` at `when`, with every component's channels and derived maps,
-        and the Gaussians that were rendered (after every component's `before_render`; the
-        rasteriser receives them through every component's `rasterised_state`). `camera` is
+        and the Gaussians that were rendered (after every component's `before_render`; their
+        gradients filtered by the one component's `pixel_gate`, if any). `camera` is
         rendered as given: a frame's camera goes through `camera_at` first (`render_frame` and
         the Trainer do so)."""
         self.before_render(when)
@@ -90,13 +90,16 @@ class SplatModel(nn.Module):
                     raise SurgsplatError(f"component {name!r} renders channel {key!r}, which "
                                          "another component already renders")
                 channels[key] = value
-        drawn = state
-        for component in self.components.values():
-            drawn = component.rasterised_state(drawn)
-        output = render(drawn.means, drawn.scales, drawn.quats, drawn.opacities, drawn.sh,
+        gates = {name: gate for name, component in self.components.items()
+                 if (gate := component.pixel_gate(self.gaussians, when)) is not None}
+        if len(gates) > 1:
+            raise SurgsplatError(f"components {', '.join(gates)} each gate the render's "
+                                 "gradients; at most one may")
+        output = render(state.means, state.scales, state.quats, state.opacities, state.sh,
                         camera.K, camera.width, camera.height,
-                        world_to_camera=camera.world_to_camera, sh_degree=drawn.sh_degree,
-                        extras=channels, background=background, absgrad=absgrad)
+                        world_to_camera=camera.world_to_camera, sh_degree=state.sh_degree,
+                        extras=channels, background=background, absgrad=absgrad,
+                        gate=next(iter(gates.values()), None))
         for component in self.components.values():
             component.finish_render(output, camera, when)
         return output, state

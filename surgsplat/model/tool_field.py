@@ -20,9 +20,9 @@
   show no tool put it behind their camera, where it is culled.
 - Tool-free rendering (Eq. 2): with `when.tissue_only` every tool Gaussian gets opacity 0, which
   composites exactly as the tissue subset alone.
-- Hidden tissue learns only where it is seen: no loss of a training step reaches, through the
-  render, a tissue Gaussian behind rendered tool or whose centre falls on one of the frame's
-  tool pixels (see `losses`).
+- Hidden tissue learns only where it is seen: no loss of a training step reaches a tissue
+  Gaussian through the frame's tool pixels (`pixel_gate`, see `losses`); from the pixels where
+  it shows, every Gaussian learns.
 - Densification (`densify_weights`): none where the tool proxy's signed distance is below the
   margin (tool Gaussians and tissue touching the tool); a tissue Gaussian whose projected centre
   lies behind rendered tool (tool probability > 0.5, rendered depth nearer than it) has its
@@ -54,6 +54,7 @@ from surgsplat.model.phases import Phase
 from surgsplat.model.physics import (PHANTOM_EXTENT_MM, ToolProxy, arap_strain, neighbour_graph,
                                      tool_proxy)
 from surgsplat.model.state import GaussianState
+from surgsplat.render.rasterize import PixelGate
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
 from surgsplat.render.sh import SH_C0
@@ -128,8 +129,6 @@ class ToolField(Component):
         # saved, so that a resumed run densifies as the uninterrupted one does
         self.register_buffer("last_tissue_image", torch.zeros(0, 0, 3))
         self._reference: tuple[Tensor, Tensor] | None = None  # canonical tool (means, colours)
-        self._gate = GradientGate()  # of the latest render: what it rasterised, tool channel
-        self._occlusion: tuple | None = None  # (render, occluded [N], pixels [N, 2]) of a step
 
     # ---- set-up ----
     def setup(self, context: SetupContext) -> None:
@@ -263,19 +262,12 @@ class ToolField(Component):
         self.last_tissue_image = torch.empty_like(state_dict.setdefault(key, torch.zeros(0, 0, 3)))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
-    def before_render(self, gaussians: GaussianModel, when: FrameTime) -> None:
-        """A new `GradientGate` for the render that follows, open until `losses` closes it."""
-        self._gate = GradientGate()
-
-    def rasterised_state(self, state: GaussianState) -> GaussianState:
-        """Every Gaussian's position, shape, colour and opacity pass to the rasteriser through
-        this render's `GradientGate`, which `losses` closes for the tissue hidden behind
-        rendered tool. The state itself is not gated: the biomechanical energies reach the
-        hidden tissue's positions."""
-        gate = self._gate
-        return state.replace(means=gate(state.means), scales=gate(state.scales),
-                             quats=gate(state.quats), sh=gate(state.sh),
-                             opacities=gate(state.opacities))
+    def pixel_gate(self, gaussians: GaussianModel, when: FrameTime) -> PixelGate | None:
+        """A training render keeps the tissue Gaussians from the gradients of the frame's tool
+        pixels (`losses` says why); the tool Gaussians learn from every pixel."""
+        if when.tool_pixels is None:
+            return None
+        return PixelGate(when.tool_pixels, ~self.tool_members(gaussians))
 
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
@@ -307,42 +299,27 @@ class ToolField(Component):
     # ---- semantic channel and its loss ----
     def render_channels(self, state, gaussians: GaussianModel, camera, when) -> dict[str, Tensor]:
         probability = 1.0 - torch.sigmoid(gaussians.params[SEMANTIC_KEY])  # [N]
-        return {TOOL_CHANNEL: self._gate(probability)}
+        return {TOOL_CHANNEL: probability}
 
     def loss_names(self) -> tuple[str, ...]:
         return ("mask",)
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         """"mask": BCE of the rendered tool probability against the tool mask over the field
-        of view. No loss of this step reaches, through the render, a tissue Gaussian hidden
-        behind rendered tool (`_occluded`) or whose projected centre falls on a tool pixel of
-        the frame (the centre clamped into the image, as `_occluded` does): the render's
-        `GradientGate` drops the gradients of its semantic logit and of everything the
-        rasteriser received of it.
-        - Where the rendered tool is thinner than the frame's (about 10% of the tool pixels of
-          the full phantom's training frames at 3000 iterations), the mask loss asks for more
-          tool probability at tissue Gaussians that nothing gated: it faded, shrank and moved
-          them, so that half as many tissue Gaussians were left under the test frames' tools
-          as `endogaussian` keeps (308 against 569 at test frame 33), and psnr_occluded was
-          23.2 dB. Gated also on the frame's tool pixels: 28.4 dB (full phantom, seed 0).
-        - Per-Gaussian Adam moves a logit by about the learning rate per step whatever the
-          gradient's size, so the faint blend weight of hidden tissue under a tool pixel would
-          otherwise flip it to tool within ~2 init_logit / semantic_lr visits.
+        of view. No loss of a training step reaches a tissue Gaussian through the frame's tool
+        pixels (`pixel_gate`): there the render is the tool's to explain.
+        - Where the rendered tool is thinner than the frame's, the mask loss would ask for more
+          tool probability at the tissue Gaussians under it: fade, shrink and move them, or
+          flip their logits (per-Gaussian Adam moves a logit by about the learning rate per
+          step whatever the gradient's size).
         - Through the tool's residual transmittance (~8% at tool pixels on the full phantom)
           the photometric loss would paint the hidden tissue in the tool's colours (at 3000
-          iterations the tool-free render showed a dark tool-shaped smear: psnr_occluded 12.8
-          against 25.3 dB at 1000), and move it out from behind the tool and shrink it: with
-          colour and opacity gated but not position and shape, the tool-free render's hole
-          (alpha < 0.5) grew from 1% of test frame 33's tool pixels at 1250 iterations to 47%
-          at 3000 (psnr_occluded 13.6 dB); with everything gated, 3% (full phantom, seed 0).
-        Its position still moves: the biomechanical energies act on the state, not through the
-        render, and carry the visible motion to it."""
+          iterations without a gate the tool-free render showed a dark tool-shaped smear:
+          psnr_occluded 12.8 dB), and move it out from behind the tool and shrink it.
+        The hidden tissue learns from the pixels where it shows around the tool, and its
+        position from the biomechanical energies, which act on the state, not through the
+        render."""
         frame = context.frame
-        with torch.no_grad():
-            tool = self.tool_members(context.gaussians)
-            occluded, pixels = self._occluded(context, tool)
-            on_tool_pixel = ~tool & frame.tool[pixels[:, 1], pixels[:, 0]]
-            self._gate.keep = ~(occluded | on_tool_pixel)
         probability = context.output.extras[TOOL_CHANNEL][..., 0].clamp(1e-4, 1.0 - 1e-4)
         inside = frame.fov
         loss = F.binary_cross_entropy(probability[inside], frame.tool[inside].float())
@@ -376,10 +353,7 @@ class ToolField(Component):
 
     def _occluded(self, context: RenderContext, tool: Tensor) -> tuple[Tensor, Tensor]:
         """[N] bool: tissue Gaussians whose projected centre is behind rendered tool; [N, 2]
-        long pixel (column, row) of every Gaussian's centre (clamped into the image). Kept for
-        the render it was computed from: the mask loss and densification of a step share it."""
-        if self._occlusion is not None and self._occlusion[0] is context.output:
-            return self._occlusion[1], self._occlusion[2]
+        long pixel (column, row) of every Gaussian's centre (clamped into the image)."""
         projection, output = context.output.projection, context.output
         height, width = output.depth.shape
         centre = projection.means2d.detach().floor().long()
@@ -389,9 +363,7 @@ class ToolField(Component):
                               centre[:, 1].clamp(0, height - 1)], dim=1)
         behind_tool = output.extras[TOOL_CHANNEL][pixels[:, 1], pixels[:, 0], 0] > 0.5
         nearer = output.depth.detach()[pixels[:, 1], pixels[:, 0]] < projection.depths.detach()
-        occluded = inside & ~tool & behind_tool & nearer
-        self._occlusion = (output, occluded, pixels)
-        return occluded, pixels
+        return inside & ~tool & behind_tool & nearer, pixels
 
     # ---- diagnostics ----
     @torch.no_grad()
@@ -419,33 +391,6 @@ class ToolField(Component):
                 "arap_strain_mean": "Eq. 4 ARAP strain per tissue Gaussian over its canonical "
                                     f"{self.config.strain_neighbours} nearest neighbours, scene "
                                     "units squared, mean over test frames"}
-
-
-class GradientGate:
-    """Passes per-Gaussian values [N, ...] through unchanged and multiplies their gradient by
-    `keep` ([N] bool, set after the render and before the backward pass; None = keep every
-    gradient). `ToolField.losses` sets it once it has the render that decides which gradients to
-    drop."""
-
-    def __init__(self):
-        self.keep: Tensor | None = None
-
-    def __call__(self, values: Tensor) -> Tensor:
-        return _Gate.apply(values, self) if values.requires_grad else values
-
-
-class _Gate(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, values: Tensor, gate: GradientGate) -> Tensor:
-        ctx.gate = gate
-        return values.clone()
-
-    @staticmethod
-    def backward(ctx, grad: Tensor) -> tuple[Tensor, None]:
-        keep = ctx.gate.keep
-        if keep is None:
-            return grad, None
-        return grad * keep.to(grad.dtype).view(-1, *[1] * (grad.dim() - 1)), None
 
 
 def _icp(tree, model: np.ndarray, target: np.ndarray, rotation: np.ndarray,

@@ -11,8 +11,13 @@ alpha_i T_i f_i if T_i (1 - alpha_i) >= 1e-4, and compositing stops at the first
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 from torch import Tensor
+
+if TYPE_CHECKING:
+    from surgsplat.render.rasterize import PixelGate
 
 ALPHA_MAX = 0.99
 ALPHA_MIN = 1.0 / 255.0
@@ -28,8 +33,8 @@ def pixel_centres(width: int, height: int, dtype: torch.dtype) -> Tensor:
 
 def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
                         depths: Tensor, radii: Tensor, width: int, height: int,
-                        absgrad: Tensor | None = None,
-                        background: Tensor | None = None) -> tuple[Tensor, Tensor]:
+                        absgrad: Tensor | None = None, background: Tensor | None = None,
+                        gate: PixelGate | None = None) -> tuple[Tensor, Tensor]:
     """Composite Gaussians front to back -> (image [H,W,C], alpha [H,W]).
 
     means2d [N,2], conics [N,3], opacities [N], features [N,C], depths [N], radii [N] (0 = culled).
@@ -37,9 +42,10 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, feat
     norm of the 2-vector) added during backward, the densification signal.
     background [C], when given, is added behind the Gaussians: image + (1 - alpha) background
     (data, as in the native kernel: it gets no gradient).
+    gate: the members' alpha and features enter the gated pixels detached (rasterize.PixelGate).
     """
     image, alpha = _composite(means2d, conics, opacities, features, depths, radii, width, height,
-                              absgrad)
+                              absgrad, gate)
     if background is not None:
         image = image + (1.0 - alpha)[..., None] * background.detach().to(image)
     return image, alpha
@@ -47,7 +53,7 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, feat
 
 def _composite(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
                depths: Tensor, radii: Tensor, width: int, height: int,
-               absgrad: Tensor | None) -> tuple[Tensor, Tensor]:
+               absgrad: Tensor | None, gate: PixelGate | None) -> tuple[Tensor, Tensor]:
     """rasterize_reference without a background."""
     channels = features.shape[1]
     keep = torch.nonzero(radii > 0).squeeze(1)
@@ -66,10 +72,18 @@ def _composite(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Ten
     q = a[:, None] * dx**2 + 2 * b[:, None] * dx * dy + c[:, None] * dy**2
     alpha = torch.clamp(opacities[keep][:, None] * torch.exp(-0.5 * q), max=ALPHA_MAX)
     alpha = torch.where((alpha >= ALPHA_MIN) & (q >= 0), alpha, torch.zeros_like(alpha))
+    blocked = None  # [M, P] (member, gated pixel) pairs
+    if gate is not None:
+        blocked = gate.members[keep][:, None] & gate.pixels.reshape(1, -1)
+        alpha = torch.where(blocked, alpha.detach(), alpha)
     after = torch.cumprod(1 - alpha, dim=0)  # [M, P] transmittance after each Gaussian
     before = torch.cat([torch.ones_like(after[:1]), after[:-1]], dim=0)
     contributes = (after >= TRANSMITTANCE_MIN).to(alpha.dtype)
     weights = alpha * before * contributes  # [M, P]
-    image = weights.T @ features[keep]  # [P, C]
+    if blocked is None:
+        image = weights.T @ features[keep]  # [P, C]
+    else:
+        image = ((weights * ~blocked).T @ features[keep]
+                 + (weights * blocked).T @ features[keep].detach())
     alpha_total = weights.sum(0)
     return image.reshape(height, width, channels), alpha_total.reshape(height, width)

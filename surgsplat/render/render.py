@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from surgsplat.render.project import Projection, project
-from surgsplat.render.rasterize import Backend, rasterize
+from surgsplat.render.rasterize import Backend, PixelGate, rasterize
 from surgsplat.render.sh import sh_colour
 
 MIN_ALPHA_FOR_DEPTH = 1e-6
@@ -66,14 +66,15 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
            K: Tensor, width: int, height: int, world_to_camera: Tensor | None = None,
            sh_degree: int | None = None, extras: dict[str, Tensor] | None = None,
            background: Tensor | None = None,
-           absgrad: Tensor | None = None, backend: Backend = "auto",
-           near: float = 0.01) -> RenderOutput:
+           absgrad: Tensor | None = None, gate: PixelGate | None = None,
+           backend: Backend = "auto", near: float = 0.01) -> RenderOutput:
     """Render Gaussians: means [N,3], scales [N,3] (linear), quats [N,4] (w,x,y,z), opacities [N],
     colors [N,3] RGB, or [N,K,3] SH coefficients when sh_degree is given.
 
     extras: name -> [N] or [N,k] per-Gaussian values to alpha-blend (normals, semantic logits, ...);
     they come back in RenderOutput.extras as [H, W, k].
-    background [3]: colour behind the Gaussians (black when None). absgrad [N]: see rasterize.
+    background [3]: colour behind the Gaussians (black when None). absgrad [N], gate: see
+    rasterize (the gate filters every channel's gradients).
     """
     projection = project(means, scales, quats, K, width, height, world_to_camera, near=near,
                          backend=backend)
@@ -90,7 +91,8 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
         background = torch.cat([background.to(features), features.new_zeros(features.shape[1] - 3)])
     image, alpha = rasterize(projection.means2d, projection.conics, opacities, features,
                              projection.depths, projection.radii, width, height,
-                             absgrad=absgrad, background=background, backend=backend)
+                             absgrad=absgrad, background=background, gate=gate,
+                             backend=backend)
 
     color, depth = _ColourAndDepth.apply(image, alpha)
     out = RenderOutput(rgb=color, alpha=alpha, depth=depth, projection=projection)

@@ -263,7 +263,8 @@ class Trainer:
         iterations = self.config.train.iterations
         weights = {name: w.weight for name, w in self.config.losses.items()
                    if w.active_at(self.iteration, iterations)}
-        when = FrameTime(frame.index, frame.time, losses=frozenset(weights))
+        when = FrameTime(frame.index, frame.time, losses=frozenset(weights),
+                         tool_pixels=frame.tool)
         camera = self.model.camera_at(frame.camera, when)
         densifying = self.strategy.gathers_statistics(self.iteration)
         absgrad = torch.zeros(self.model.gaussians.num_gaussians) if densifying else None

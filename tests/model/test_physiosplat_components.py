@@ -329,7 +329,7 @@ def test_mask_loss_never_flips_tissue_hidden_behind_the_tool():
     gaussians, field, model, camera, frame = _tool_before_tissue(0.99)
     logits = gaussians.params[SEMANTIC_KEY]
     optimiser = torch.optim.Adam([logits], lr=0.05)
-    when = FrameTime(0, 0.0)
+    when = FrameTime(0, 0.0, tool_pixels=frame.tool)
     for iteration in range(1, 301):
         output, state = model.render(camera, when)
         context = RenderContext(frame=frame, when=when, camera=camera, output=output,
@@ -349,18 +349,20 @@ def test_no_loss_through_the_render_reaches_hidden_tissue():
     the state itself (as the biomechanical energies are) still moves the hidden tissue. With
     the tool moved aside but the frame's mask still marking tool there (a rendered tool
     thinner than the frame's), the mask loss still must not reach the tissue (it would fade
-    and move it away); once the frame shows tissue there, its render gradients are back."""
+    and move it away); once the frame shows tissue there, its render gradients are back, and
+    where the frame shows tissue on half of the image only, the tissue Gaussian centred on the
+    tool half learns from the tissue half (the gate is per pixel, not per Gaussian)."""
     gaussians, field, model, camera, frame = _tool_before_tissue(0.9)
     with torch.no_grad():  # anisotropic and turned, so that rotations have a gradient
         gaussians.params["log_scales"].copy_(torch.tensor([[3.0, 2.0, 1.0]]).log())
         gaussians.params["quats"].copy_(torch.tensor([[0.9, 0.3, 0.2, 0.1]]))
-    when = FrameTime(0, 0.0)
     names = ("sh_dc", "opacity_logits", "means", "log_scales", "quats")
 
     def gradients(state_weight: float = 0.0, seen: Frame = frame) -> dict[str, Tensor]:
         """|gradient| per Gaussian [2] of each parameter in `names`, against frame `seen`."""
         for parameter in gaussians.params.values():
             parameter.grad = None
+        when = FrameTime(0, 0.0, tool_pixels=seen.tool)
         output, state = model.render(camera, when)
         context = RenderContext(frame=seen, when=when, camera=camera, output=output,
                                 state=state, gaussians=gaussians, iteration=1)
@@ -382,6 +384,11 @@ def test_no_loss_through_the_render_reaches_hidden_tissue():
     visible = gradients(seen=frame.with_tool(torch.zeros_like(frame.tool)))  # tissue shown
     for name in names:
         assert visible[name][0] > 0, name
+    left = torch.zeros_like(frame.tool)
+    left[:, :camera.width // 2 + 4] = True  # the tissue's centre is on a tool pixel
+    half = gradients(seen=frame.with_tool(left))
+    for name in names:
+        assert half[name][0] > 0, name
 
 
 def test_specular_normals_are_smoothed_against_depth_jitter():
