@@ -22,9 +22,14 @@ Suite `fidelity` (issue 28): every paper preset beside the preset it extends, at
 schedule (the preset's `train.iterations`, 3000): endogsg and physiosplat beside endogaussian,
 endoplanar and lumistate beside deform3dgs, drawer beside endogsg; lumistate and deform3dgs on
 the hivar lighting phantom; every preset once more on the moving-camera phantom, beside
-deform3dgs there. The livar phantom's images are the standard phantom's (it adds the true
-shading only), so issue 28's livar target is checked on the standard rows. Its TARGETS are checked in the report (`targets`: each with the
-measured value, the bound and whether it is met), on the means over the seeds.
+deform3dgs there; and issue 33's `surgsplat` on each of the three phantoms, whose targets are
+the best of the single presets on the same phantom. The livar phantom's images are the standard
+phantom's (it adds the true shading only), so issue 28's livar target is checked on the
+standard rows. Its TARGETS are checked in the report (`targets`: each with the measured value,
+the bound and whether it is met), on the means over the seeds.
+
+Suite `surgsplat` (issue 33): the combined preset and its leave-one-out rows, each without one
+paper's part (Endo-GSG's SDF, EndoPlanar's discs, LumiState's decomposition).
 
 Suite `endogsg` (issue 13): deform3dgs, endogaussian and endoplanar beside endogsg and its
 ablations of Endo-GSG Table 4 (without the depth loss, without projection and orientation,
@@ -125,6 +130,18 @@ PHYSIOSPLAT_WITHOUT_SPECULAR = ("components.specular=null",)
 specular lobe alone."""
 
 
+SURGSPLAT_WITHOUT_SDF = (
+    "components.sdf=null", "losses.eikonal=null", "losses.projection=null",
+    "losses.orientation=null", "losses.sda=null", "components.photometric.occlusion_gamma=0",
+    "components.depth.occlusion_gamma=0")
+"""The `surgsplat` preset without Endo-GSG's part: its SDF, the SDF's losses and the occlusion
+importance map (what is left of it is EndoGaussian's)."""
+SURGSPLAT_WITHOUT_PLANAR = ("components.planar=null", "losses.flatten=null", "losses.normal=null",
+                            "gaussians.init_thickness=1")
+SURGSPLAT_WITHOUT_LUMISTATE = ("components.lumistate=null", "losses.retinex=null",
+                               "losses.bright_channel=null", "losses.illumination_transfer=null")
+
+
 FIDELITY_PRESETS = {"endogsg": "endogaussian", "physiosplat": "endogaussian",
                     "endoplanar": "deform3dgs", "lumistate": "deform3dgs", "drawer": "endogsg"}
 """Each paper preset and the preset it extends (its base)."""
@@ -133,12 +150,16 @@ FIDELITY_CASES = (
     Case("endogaussian", "endogaussian", "pulling", base="deform3dgs"),
     *(Case(name, name, "pulling", base=base, export_mesh=name in ("endogsg", "drawer"))
       for name, base in FIDELITY_PRESETS.items()),
+    Case("surgsplat", "surgsplat", "pulling"),
     Case("deform3dgs-hivar", "deform3dgs", "hivar"),
     Case("lumistate-hivar", "lumistate", "hivar", base="deform3dgs-hivar"),
+    Case("surgsplat-hivar", "surgsplat", "hivar", base="deform3dgs-hivar"),
     Case("deform3dgs-moving", "deform3dgs", "pulling-moving-camera"),
     *(Case(f"{name}-moving", name, "pulling-moving-camera", base="deform3dgs-moving")
-      for name in ("endogaussian", *FIDELITY_PRESETS)),
+      for name in ("endogaussian", *FIDELITY_PRESETS, "surgsplat")),
 )
+SINGLE_PRESETS = ("deform3dgs", "endogaussian", *FIDELITY_PRESETS)
+"""The presets of one paper (or baseline) each, which the combined `surgsplat` must match."""
 
 
 @dataclass(frozen=True)
@@ -217,6 +238,32 @@ FIDELITY_TARGETS = (
 rendered colour scored as reflectance on the same phantom."""
 
 
+SURGSPLAT_BEST_OF = {"psnr_tissue": True, "psnr_occluded": True, "depth_rmse_mm": False,
+                     "normal_error_deg_median": False, "gaussians_p2s_weighted_median_mm": False,
+                     "mesh_p2s_median_mm": False, "reflectance_error": False}
+"""Issue 33's metrics on which `surgsplat` must match the best single preset (True: higher is
+better)."""
+
+
+def surgsplat_targets(suffix: str, singles: tuple[str, ...]) -> tuple[Target, ...]:
+    """Issue 33's targets of the case `surgsplat<suffix>` against the single presets' rows
+    `singles` on the same phantom: the best of them on every metric of SURGSPLAT_BEST_OF, at
+    most 2x deform3dgs's training time, at most 4 GB of peak RSS."""
+    case = f"surgsplat{suffix}"
+    return (*(Target(case, metric, higher, 0.0, singles)
+              for metric, higher in SURGSPLAT_BEST_OF.items()),
+            Target(case, "train_cpu_seconds", False, 2.0, (f"deform3dgs{suffix}",),
+                   relative=True),
+            Target(case, "peak_rss_mb", False, 4096.0))
+
+
+SURGSPLAT_TARGETS = (
+    *surgsplat_targets("", SINGLE_PRESETS),
+    *surgsplat_targets("-hivar", ("deform3dgs-hivar", "lumistate-hivar")),
+    *surgsplat_targets("-moving", tuple(f"{name}-moving" for name in SINGLE_PRESETS)),
+)
+
+
 SUITES = {
     "fidelity": Suite(
         cases=FIDELITY_CASES,
@@ -226,7 +273,18 @@ SUITES = {
                  "mesh_p2s_median_mm", "reflectance_error", "collisions", "collision_fraction",
                  "collision_fraction_truth",
                  "hinge_axis_error_deg", "jaw_angle_rmse_deg"),
-        baseline="deform3dgs", targets=FIDELITY_TARGETS),
+        baseline="deform3dgs", targets=FIDELITY_TARGETS + SURGSPLAT_TARGETS),
+    "surgsplat": Suite(
+        cases=(
+            Case("surgsplat", "surgsplat", "pulling"),
+            Case("surgsplat-no-sdf", "surgsplat", "pulling", SURGSPLAT_WITHOUT_SDF),
+            Case("surgsplat-no-planar", "surgsplat", "pulling", SURGSPLAT_WITHOUT_PLANAR),
+            Case("surgsplat-no-lumistate", "surgsplat", "pulling", SURGSPLAT_WITHOUT_LUMISTATE),
+        ),
+        metrics=("psnr_tissue", "psnr_tissue_gain", "psnr_occluded", "depth_rmse_mm",
+                 "normal_error_deg_median", "gaussians_p2s_weighted_median_mm",
+                 "mesh_p2s_median_mm", "reflectance_error"),
+        baseline="surgsplat"),
     "endoplanar": Suite(
         cases=(
             Case("deform3dgs", "deform3dgs", "pulling"),
