@@ -6,8 +6,7 @@ average over the counted pixels and are 0 when there is none.
 
 `DepthLoss` is the component that applies one of them to the render's depth map (the expected
 depth of the compositing, or the depth a component puts in its place, e.g. EndoPlanar's unbiased
-plane depth), or to the depth of the tissue alone where the render has one (TISSUE_DEPTH, of a
-model that renders the tool).
+plane depth).
 """
 
 from __future__ import annotations
@@ -20,7 +19,6 @@ from torch import Tensor
 
 from surgsplat.image.depth import valid_depth_pixels
 from surgsplat.losses.occlusion import OcclusionImportance
-from surgsplat.model.channels import TISSUE_DEPTH
 from surgsplat.model.component import Component, ComponentConfig, RenderContext, SetupContext
 from surgsplat.model.phases import Phase
 
@@ -117,6 +115,5 @@ class DepthLoss(Component):
         if frame.depth is None:  # a constant: no backward through the depth map (~2 ms/step)
             return {"depth": output.depth.new_zeros(())}
         weights = self.importance.weights(frame) if self.config.occlusion_gamma > 0 else None
-        tissue_depth = output.extras.get(TISSUE_DEPTH)
-        depth = output.depth if tissue_depth is None else tissue_depth[..., 0]
-        return {"depth": FORMS[self.config.form](depth, frame.depth, frame.tissue, weights)}
+        return {"depth": FORMS[self.config.form](output.depth, frame.depth, frame.tissue,
+                                                 weights)}

@@ -15,9 +15,7 @@ Kinds, and how each is shown:
 - probability: [H, W, 1] in [0, 1], shown through its colour map over [0, 1].
 
 Channels an intrinsic decomposition renders go by standard names (`REFLECTANCE`,
-`ILLUMINATION`), under which the decomposition metrics find them; a training render of a model
-that renders the tool may carry the depth of its tissue alone (`TISSUE_DEPTH`), which the depth
-losses then measure.
+`ILLUMINATION`), under which the decomposition metrics find them.
 """
 
 from __future__ import annotations
@@ -70,9 +68,3 @@ REFLECTANCE = "reflectance"
 """Standard name of a decomposition's reflectance channel: colour [H, W, 3]."""
 ILLUMINATION = "illumination"
 """Standard name of a decomposition's illumination channel: scalar [H, W, 1] in [0, 1]."""
-TISSUE_DEPTH = "tissue_depth"
-"""Standard name of the expected depth of the tissue Gaussians alone, scalar [H, W, 1] (0 where
-no tissue is drawn): a measured depth map sees tissue at its tissue pixels, so where a model
-also renders the tool, whose soft edge spills over them, the depth losses measure this channel
-instead of the render's depth, which would otherwise pull the tissue there away from the tool's
-depth."""

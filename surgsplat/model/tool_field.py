@@ -45,7 +45,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from surgsplat.image.pinhole import backproject
-from surgsplat.model.channels import TISSUE_DEPTH, ChannelDescriptor, ChannelKind, Colormap
+from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
                                        InitialPoints, ParamGroup, RenderContext, SceneInfo,
                                        SetupContext)
@@ -55,7 +55,6 @@ from surgsplat.model.physics import (PHANTOM_EXTENT_MM, ToolProxy, arap_strain, 
                                      tool_proxy)
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rasterize import PixelGate
-from surgsplat.render.render import MIN_ALPHA_FOR_DEPTH
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
 from surgsplat.render.sh import SH_C0
@@ -64,9 +63,6 @@ SEMANTIC_KEY = "semantic_logit"
 """Per-Gaussian attribute holding the semantic logit s ([N]; sigmoid(s) = tissue probability)."""
 TOOL_CHANNEL = "tool_probability"
 """Rendered channel [H, W, 1]: blended tool probability 1 - sigmoid(s)."""
-_TISSUE_SUMS = "tool_field_tissue_sums"
-"""Rendered channel [H, W, 2] of training renders: the tissue Gaussians' blended camera depth
-and blend weight, from which `finish_render` derives TISSUE_DEPTH."""
 
 
 @dataclass
@@ -302,24 +298,8 @@ class ToolField(Component):
 
     # ---- semantic channel and its loss ----
     def render_channels(self, state, gaussians: GaussianModel, camera, when) -> dict[str, Tensor]:
-        """The tool probability; in a training render for the depth loss also the tissue
-        Gaussians' camera depth and weight, of which `finish_render` makes TISSUE_DEPTH."""
         probability = 1.0 - torch.sigmoid(gaussians.params[SEMANTIC_KEY])  # [N]
-        channels = {TOOL_CHANNEL: probability}
-        if when.losses is not None and when.serves("depth"):
-            tissue = (~self.tool_members(gaussians)).to(probability.dtype)  # [N]
-            world_to_camera = camera.world_to_camera
-            depth = state.means @ world_to_camera[2, :3] + world_to_camera[2, 3]  # [N]
-            channels[_TISSUE_SUMS] = torch.stack([depth * tissue, tissue], dim=1)
-        return channels
-
-    def finish_render(self, output, camera, when: FrameTime) -> None:
-        sums = output.extras.pop(_TISSUE_SUMS, None)  # [H, W, 2]: sum w z, sum w over tissue
-        if sums is not None:
-            weight = sums[..., 1:]
-            output.extras[TISSUE_DEPTH] = torch.where(
-                weight > MIN_ALPHA_FOR_DEPTH, sums[..., :1] / weight.clamp_min(MIN_ALPHA_FOR_DEPTH),
-                torch.zeros_like(weight))
+        return {TOOL_CHANNEL: probability}
 
     def loss_names(self) -> tuple[str, ...]:
         return ("mask",)

@@ -16,7 +16,6 @@ from surgsplat.data.scene import Camera, Frame
 from surgsplat.fields.deformation import Deformation, DeformationField
 from surgsplat.fields.hexplane import HexPlaneConfig
 from surgsplat.losses.biomechanics import BiomechanicsConfig
-from surgsplat.losses.depth import DepthLossConfig
 from surgsplat.model.component import FrameTime, RenderContext, SceneInfo, SetupContext
 from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
@@ -390,34 +389,6 @@ def test_no_loss_through_the_render_reaches_hidden_tissue():
     half = gradients(seen=frame.with_tool(left))
     for name in names:
         assert half[name][0] > 0, name
-
-
-def test_the_depth_loss_measures_the_tissue_alone_where_the_tool_spills_over_it():
-    """A half-transparent tool Gaussian (14 mm) in front of a tissue Gaussian (20 mm) over
-    pixels the frame calls tissue, measured at 20 mm (the tool's soft edge over tissue): the
-    render's depth is pulled towards the tool's, but the depth loss of a training render
-    measures the tissue alone, exactly at its depth: loss 0 (abs. 1e-5, relative error). Without
-    the tool field's tissue depth (an evaluation render) the render's depth is the mix (< 19 mm
-    at the centre)."""
-    gaussians, field, _, camera, frame = _tool_before_tissue(0.5)
-    tissue = torch.zeros_like(frame.tool)
-    tissue[camera.height // 2 - 4:camera.height // 2 + 5,
-           camera.width // 2 - 4:camera.width // 2 + 5] = True  # where the tissue is drawn
-    frame = Frame(0, 0.0, frame.image, torch.full(frame.tool.shape, 20.0), False, camera,
-                  tool=torch.zeros_like(tissue), fov=tissue)
-    depth_loss = DepthLossConfig().build()
-    model = SplatModel(gaussians, {"tool": field, "depth": depth_loss})
-    when = FrameTime(0, 0.0, losses=frozenset({"depth"}), tool_pixels=frame.tool)
-    output, state = model.render(camera, when)
-    centre = (camera.height // 2, camera.width // 2)
-    assert float(output.depth[centre]) < 19.0
-    context = RenderContext(frame=frame, when=when, camera=camera, output=output, state=state,
-                            gaussians=gaussians, iteration=1)
-    loss = depth_loss.losses(context, frozenset({"depth"}))["depth"]
-    assert float(loss) == pytest.approx(0.0, abs=1e-5)
-    evaluation, _ = model.render(camera, FrameTime(0, 0.0))
-    assert "tissue_depth" not in evaluation.extras
-    assert float(evaluation.depth[centre]) < 19.0
 
 
 def test_specular_normals_are_smoothed_against_depth_jitter():
