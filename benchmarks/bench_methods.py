@@ -200,7 +200,9 @@ class Target:
         refs = " / ".join(self.references)
         if self.reference_metric:
             refs = f"{refs}'s {self.reference_metric}"
-        ref = f"max({refs})" if self.at_least and len(self.references) > 1 else refs
+        ref = refs
+        if len(self.references) > 1:
+            ref = f"{'max' if self.at_least else 'min'}({refs})"
         bound = f"{self.limit:g} x {ref}" if self.relative else f"{ref} {self.limit:+g}"
         return f"{self.metric} {relation} {bound}"
 
