@@ -28,3 +28,4 @@ void bind_project(nanobind::module_& m);
 void bind_probe(nanobind::module_& m);
 void bind_gaussian_basis(nanobind::module_& m);
 void bind_sh(nanobind::module_& m);
+void bind_normals(nanobind::module_& m);

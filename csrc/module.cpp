@@ -90,4 +90,5 @@ SURGSPLAT_NB_MODULE(SURGSPLAT_MODULE, m) {
     bind_probe(m);
     bind_gaussian_basis(m);
     bind_sh(m);
+    bind_normals(m);
 }

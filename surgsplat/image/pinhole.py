@@ -12,15 +12,22 @@ import torch
 from torch import Tensor
 
 
-def pixel_rays(K: Tensor, width: int, height: int, dtype: torch.dtype = torch.float32) -> Tensor:
-    """[H, W, 3] camera-space rays K^-1 [u + 0.5, v + 0.5, 1] through the pixel centres
-    (z component 1), for pinhole intrinsics K [3, 3]."""
+def pixel_ray_axes(K: Tensor, width: int, height: int,
+                   dtype: torch.dtype = torch.float32) -> tuple[Tensor, Tensor]:
+    """The two varying components of the pixel rays K^-1 [u + 0.5, v + 0.5, 1]: x [W] of each
+    column u and y [H] of each row v (the ray of pixel (u, v) is (x[u], y[v], 1))."""
     K = K.to(dtype)
     u = torch.arange(width, dtype=dtype) + 0.5
     v = torch.arange(height, dtype=dtype) + 0.5
-    vv, uu = torch.meshgrid(v, u, indexing="ij")
-    return torch.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1],
-                        torch.ones_like(uu)], dim=-1)
+    return (u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]
+
+
+def pixel_rays(K: Tensor, width: int, height: int, dtype: torch.dtype = torch.float32) -> Tensor:
+    """[H, W, 3] camera-space rays K^-1 [u + 0.5, v + 0.5, 1] through the pixel centres
+    (z component 1), for pinhole intrinsics K [3, 3]."""
+    x, y = pixel_ray_axes(K, width, height, dtype)
+    return torch.stack([x.expand(height, width), y[:, None].expand(height, width),
+                        torch.ones(height, width, dtype=x.dtype)], dim=-1)
 
 
 def backproject_camera(depth: Tensor, K: Tensor) -> Tensor:

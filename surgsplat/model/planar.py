@@ -27,7 +27,7 @@ import torch
 from torch import Tensor
 
 from surgsplat.image.depth import depth_gradient_magnitude
-from surgsplat.image.pinhole import depth_normals
+from surgsplat.image.normal_consistency import normal_consistency
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, RenderContext
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
@@ -78,15 +78,14 @@ class PlanarGaussians(Component):
     def normal_loss(self, context: RenderContext) -> Tensor:
         """Eq. 8 over the counted pixels (see the module docstring); 0 when there are none."""
         output, frame = context.output, context.frame
-        from_depth, valid = depth_normals(output.depth, context.camera.K)
-        rendered = torch.nn.functional.normalize(output.extras["normal"], dim=-1)
-        counted = valid & frame.tissue
-        weight = torch.ones_like(output.depth)
+        counted = frame.tissue
+        weight = None
         if frame.depth is not None:
-            counted &= frame.depth > 0
+            counted = counted & (frame.depth > 0)
             if self.config.edge_aware:
                 measured = torch.where(frame.depth > 0, frame.depth, torch.ones_like(frame.depth))
                 relative = depth_gradient_magnitude(frame.depth) / measured
                 weight = (1.0 - relative.clamp(0.0, 1.0)) ** 2
-        error = (from_depth - rendered).abs().sum(-1) * weight
-        return (error * counted).sum() / counted.sum().clamp_min(1)
+        total, count = normal_consistency(output.depth, output.extras["normal"],
+                                          context.camera.K, counted, weight)
+        return total / count.clamp_min(1)

@@ -7,7 +7,8 @@ CALLS_DIR/calls.json lists the calls in order: {"function": name, "args": [spec,
 spec is ["array", file] (an .npy file in CALLS_DIR, the array as it was before the call), ["list",
 [spec, ...]], ["result", i] (the object call i returned, e.g. the rasteriser's tile bins) or
 ["scalar", value]. Every array argument is written to OUT_DIR/<file> after the call (the kernels
-write their outputs into arguments), and the calls' float or int returns to OUT_DIR/returns.json.
+write their outputs into arguments), and the calls' number returns (a float or int, or a tuple of
+them, as a list) to OUT_DIR/returns.json.
 """
 
 import importlib.util
@@ -44,8 +45,9 @@ def replay(module, calls_dir: Path, out_dir: Path) -> None:
             return content
 
         results[index] = getattr(module, call["function"])(*[value(s) for s in call["args"]])
-        if isinstance(results[index], (int, float)):
-            returns[str(index)] = results[index]
+        numbers = results[index] if isinstance(results[index], tuple) else (results[index],)
+        if all(isinstance(number, (int, float)) for number in numbers):
+            returns[str(index)] = list(numbers)
         for name, array in arrays.items():
             np.save(out_dir / name, array)
     (out_dir / "returns.json").write_text(json.dumps(returns))

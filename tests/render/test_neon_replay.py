@@ -1,14 +1,14 @@
 """The NEON build of the native module, executed on an x86-64 host: it is cross-compiled from
 CMakeLists.txt (aarch64-linux-gnu-g++), and the calls that a render with its backward, D-SSIM,
-the blur, the Gaussian-basis and the HexPlane fields make of the baseline module are recorded,
-replayed on the NEON module by native_replay.py in Debian's arm64 Python and NumPy under
+the blur, the Gaussian-basis and the HexPlane fields and the normal consistency make of the
+baseline module are recorded, replayed on the NEON module by native_replay.py in Debian's arm64 Python and NumPy under
 qemu-aarch64, and every output is compared with the baseline's.
 
 The baseline variant is checked against the PyTorch references by the other tests. baseline and
 NEON hold the 16 lanes in four 4-lane registers alike, so the same source adds in the same
 order on both; only the fused multiply-adds that the aarch64 compiler forms (x86-64 baseline has
 no FMA) round differently. Tolerance: max |NEON - baseline| <= 3e-5 of the output's largest
-magnitude (the largest seen is 3.7e-6, in the SSIM map), integer outputs (radii, last
+magnitude (the largest seen is 3.7e-6, in the SSIM map), integer and boolean outputs (radii, last
 contributors) equal.
 
 Needs Debian's g++-aarch64-linux-gnu and qemu-user, cmake, and the arm64 sysroot that
@@ -32,6 +32,7 @@ import torch
 from surgsplat.fields.gaussian_basis import deformation_channels
 from surgsplat.fields.hexplane import plane_features
 from surgsplat.image.blur import gaussian_blur
+from surgsplat.image.normal_consistency import normal_consistency
 from surgsplat.image.ssim import ssim, ssim_map
 from surgsplat.render import native
 from surgsplat.render.render import render
@@ -50,7 +51,7 @@ class Recorder:
         self.module, self.folder = module, folder
         self.calls: list[dict] = []
         self.after: dict[str, np.ndarray] = {}
-        self.returns: dict[str, float] = {}
+        self.returns: dict[str, list[float]] = {}
         self.result_index: dict[int, int] = {}  # id of a returned object -> its call
 
     def __getattr__(self, name: str):
@@ -66,8 +67,9 @@ class Recorder:
             if arrays:
                 self.calls.append({"function": name, "args": specs})
                 self.after.update({file: array.copy() for file, array in arrays.items()})
-                if isinstance(result, (int, float)):
-                    self.returns[str(index)] = result
+                numbers = result if isinstance(result, tuple) else (result,)
+                if all(isinstance(number, (int, float)) for number in numbers):
+                    self.returns[str(index)] = list(numbers)
                 elif result is not None:
                     self.result_index[id(result)] = index
             return result
@@ -129,6 +131,12 @@ def exercise_every_kernel() -> None:
     coords = (rand(200, 3) * 2.4 - 1.2).requires_grad_()
     features = plane_features(coords, 0.3, spatial, temporal, backend="native")
     (features * rand(*features.shape)).sum().backward()
+
+    depth = (2.0 + 0.3 * rand(height, width)).requires_grad_()
+    rendered_normals = (rand(height, width, 3) - torch.tensor([0.5, 0.5, 0.0])).requires_grad_()
+    total, _ = normal_consistency(depth, rendered_normals, K, tissue, rand(height, width),
+                                  backend="native")
+    total.backward()
 
 
 def cross_toolchain_missing() -> str | None:
@@ -192,7 +200,7 @@ def recording(tmp_path_factory) -> Recorder:
 def test_neon_build_matches_the_baseline_on_every_kernel(neon_module, recording, tmp_path):
     functions = {call["function"] for call in recording.calls}
     assert {f"{op}_{way}" for op in ("project", "sh", "rasterize", "ssim", "gaussian_basis",
-                                     "hexplane") for way in ("forward", "backward")} | {"blur"} \
+                                     "hexplane", "normal_consistency") for way in ("forward", "backward")} | {"blur"} \
         <= functions
     replayed = subprocess.run(
         ["qemu-aarch64", "-L", str(SYSROOT), "-E",
@@ -206,7 +214,7 @@ def test_neon_build_matches_the_baseline_on_every_kernel(neon_module, recording,
     for file, expected in recording.after.items():
         got = np.load(tmp_path / file)
         call = recording.calls[int(file[1:].split("_")[0])]["function"]
-        if np.issubdtype(expected.dtype, np.integer):
+        if np.issubdtype(expected.dtype, np.integer) or expected.dtype == np.bool_:
             if not np.array_equal(got, expected):
                 differ = int((got != expected).sum())
                 failures.append(f"{call} {file}: {differ} of {got.size} differ")
@@ -217,6 +225,7 @@ def test_neon_build_matches_the_baseline_on_every_kernel(neon_module, recording,
             failures.append(f"{call} {file}: relative error {error:.2e}")
     returns = json.loads((tmp_path / "returns.json").read_text())
     for index, expected in recording.returns.items():
-        if abs(returns[index] - expected) > RELATIVE_TOLERANCE * max(abs(expected), 1.0):
+        if any(abs(got - want) > RELATIVE_TOLERANCE * max(abs(want), 1.0)
+               for got, want in zip(returns[index], expected, strict=True)):
             failures.append(f"call {index} returned {returns[index]}, expected {expected}")
     assert not failures, "\n".join(failures)
