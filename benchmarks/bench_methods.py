@@ -31,6 +31,10 @@ the bound and whether it is met), on the means over the seeds.
 Suite `surgsplat` (issue 33): the combined preset and its leave-one-out rows, each without one
 paper's part (Endo-GSG's SDF, EndoPlanar's discs, LumiState's decomposition).
 
+Suite `real` (issue 33): deform3dgs and surgsplat on the real samples of ../shared/data
+(REAL_SCENES: the CholecSeg8k clip, the SCARED stereo pair), each imported once into the work
+folder. Target: surgsplat's psnr_tissue at least deform3dgs's on each.
+
 Suite `endogsg` (issue 13): deform3dgs, endogaussian and endoplanar beside endogsg and its
 ablations of Endo-GSG Table 4 (without the depth loss, without projection and orientation,
 without SDA); the mesh export of every frame is timed for deform3dgs and endogsg. Targets:
@@ -96,7 +100,7 @@ class Case:
 
     name: str
     method: str
-    phantom: str  # key of PHANTOMS
+    phantom: str  # key of PHANTOMS, or of REAL_SCENES
     settings: tuple[str, ...] = ()  # --set assignments
     export_mesh: bool = False  # also time `surgsplat export --mesh` of every frame
     base: str | None = None  # case this row's ratios refer to (None: the suite's baseline)
@@ -107,6 +111,24 @@ PHANTOMS = {"pulling": ("--preset", "full", "--motion", "pulling"),
                                       "--camera", "moving"),
             "livar": ("--preset", "full", "--motion", "pulling", "--lighting", "livar"),
             "hivar": ("--preset", "full", "--motion", "pulling", "--lighting", "hivar")}
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SCARED_FOCAL_PX, SCARED_BASELINE_MM = 517.0, 4.2
+"""The SCARED pair's camera, assumed (the sample ships no calibration): half the dataset's
+full-resolution focal length, and a da Vinci stereo baseline. They set the scene's scale in
+millimetres, the same for every case."""
+REAL_SCENES = {
+    "cholecseg8k": ("cholecseg8k-clip", (
+        "--pattern", "*_endo.png", "--masks", "{source}", "--mask-pattern",
+        "*_endo_watershed_mask.png", "--tool-labels", "31,32", "--allow-missing-masks"), ()),
+    "scared": ("scared-stereo-sample/left", (
+        "--right", "{source}/../right", "--focal", str(SCARED_FOCAL_PX),
+        "--baseline", str(SCARED_BASELINE_MM)), ("--frames", "train")),
+}
+"""Scenes imported from the real samples in ../shared/data (never copied into the repository):
+the CholecSeg8k clip with its tool labels (static camera, no depth) and the SCARED stereo pair
+(one frame, depth from stereo, no held-out frame: its metrics are of the training frame). Each
+is a folder under ../shared/data, its `surgsplat import` options ({source}: that folder) and
+its `surgsplat eval` options."""
 STAGE1_ONLY = ("losses.retinex.weight=0", "losses.bright_channel.weight=0")
 
 
@@ -287,6 +309,14 @@ SUITES = {
                  "normal_error_deg_median", "gaussians_p2s_weighted_median_mm",
                  "mesh_p2s_median_mm", "reflectance_error"),
         baseline="surgsplat"),
+    "real": Suite(
+        cases=tuple(case for key in REAL_SCENES for case in (
+            Case(f"deform3dgs-{key}", "deform3dgs", key),
+            Case(f"surgsplat-{key}", "surgsplat", key, base=f"deform3dgs-{key}"))),
+        metrics=("psnr_tissue", "psnr_tissue_gain", "ssim_tissue", "depth_rmse_mm"),
+        baseline="deform3dgs-cholecseg8k",
+        targets=tuple(Target(f"surgsplat-{key}", "psnr_tissue", True, 0.0,
+                             (f"deform3dgs-{key}",)) for key in REAL_SCENES)),
     "endoplanar": Suite(
         cases=(
             Case("deform3dgs", "deform3dgs", "pulling"),
@@ -375,6 +405,19 @@ def surgsplat(*args: str) -> float:
 
 
 def phantom_dir(work: Path, key: str) -> Path:
+    """The scene of `key` under `work`: the phantom of PHANTOMS[key] generated there, or the
+    real sample of REAL_SCENES[key] imported there, unless it already is."""
+    if key in REAL_SCENES:
+        folder, options, _ = REAL_SCENES[key]
+        source = SHARED_DATA / folder
+        if not source.is_dir():
+            raise SystemExit(f"{source}: no such folder; the real-data cases need the shared "
+                             f"samples (../shared/data beside the repository)")
+        scene = work / f"scene-{key}"
+        if not (scene / "poses_bounds.npy").is_file():
+            surgsplat("import", str(source), "--out", str(scene),
+                      *(option.format(source=source) for option in options))
+        return scene
     folder = work / f"phantom-{key}"
     if not (folder / "poses_bounds.npy").is_file():
         surgsplat("phantom", "--out", str(folder), *PHANTOMS[key])
@@ -405,7 +448,7 @@ def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
     train_cpu = surgsplat(*threading, "train", "--method", case.method, "--data", str(scene),
                           "--out", str(run_dir), *options)
     wall = time.perf_counter() - started
-    surgsplat(*threading, "eval", str(run_dir))
+    surgsplat(*threading, "eval", str(run_dir), *REAL_SCENES.get(case.phantom, ((), (), ()))[2])
     metrics = json.loads((run_dir / "metrics.json").read_text())
     if case.export_mesh:
         started = time.perf_counter()

@@ -10,13 +10,14 @@ from rich.console import Console
 from rich.table import Table
 
 from surgsplat.cli.progress import progress_bar
+from surgsplat.errors import SurgsplatError
 from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions
 from surgsplat.pipeline.evaluate import evaluate
 from surgsplat.train.run import load_trained_run, run_lock
 
 
 def print_metrics(metrics: dict, console: Console) -> None:
-    table = Table(title="test-frame metrics", show_header=True)
+    table = Table(title=f"{metrics.get('evaluated_on', 'test')}-frame metrics", show_header=True)
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key, value in metrics.items():
@@ -46,7 +47,7 @@ def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
     RUN/metrics.json), print the table; returns the metrics."""
     run = load_trained_run(run_dir, data)
     with progress_bar() as bar:
-        task = bar.add_task("evaluate", total=len(run.scene.test_frames))
+        task = bar.add_task("evaluate", total=len((options or EvalOptions()).frames_of(run)))
         metrics = evaluate(run, options, lambda done, _: bar.update(task, completed=done))
     console = Console()
     print_metrics(metrics, console)
@@ -62,8 +63,14 @@ def eval_command(
         help="torchvision AlexNet checkpoint for LPIPS (else $SURGSPLAT_ALEXNET_WEIGHTS or the "
              "torch hub cache; LPIPS is null when none is found).")] = None,
     geometry: Annotated[bool, typer.Option(help="Geometry against gt/ meshes (phantoms).")] = True,
+    frames: Annotated[str, typer.Option(
+        help="Frames scored: test (held out, every 8th frame from 1) or train (the fit to the "
+             "training frames, for a scene with no held-out frame such as one stereo pair; "
+             "metrics.json says which).")] = "test",
 ) -> None:
     """Evaluate a trained run on its test frames (every 8th frame from 1)."""
+    if frames not in ("test", "train"):
+        raise SurgsplatError(f"--frames: expected test or train, got {frames!r}")
     with run_lock(run_dir):
         evaluate_and_report(run_dir, EvalOptions(alexnet_weights=alexnet_weights,
-                                                 geometry=geometry), data)
+                                                 geometry=geometry, frames=frames), data)

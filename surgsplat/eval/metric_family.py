@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 from functools import cached_property
 from pathlib import Path
 
@@ -39,6 +40,13 @@ class EvalOptions:
     estimate_articulation: Callable[[TrainedRun], dict] = articulate
     """Estimates the run's tool articulation (RUN/articulation.json's content) when the run has
     none saved; SurgsplatError when it cannot. The default writes nothing."""
+    frames: Literal["test", "train"] = "test"
+    """The frames scored: the held-out test frames, or the training frames (a measure of the
+    fit, not of generalisation: for a scene with no held-out frame, e.g. one stereo pair)."""
+
+    def frames_of(self, run: TrainedRun) -> list[Frame]:
+        """The frames of `run`'s scene that these options score."""
+        return run.scene.test_frames if self.frames == "test" else run.scene.train_frames
 
 
 def gt_mesh_path(scene_root: Path, index: int) -> Path:

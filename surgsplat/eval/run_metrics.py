@@ -41,6 +41,9 @@ METRIC_FAMILIES: tuple[type[MetricFamily], ...] = (
 DEPTH_KEYS = ("depth_rmse", "depth_rmse_occluded")
 """Metrics in the scene's depth unit, named with it when it is millimetres."""
 CONVENTIONS = {
+    "evaluated_on": "the frames every metric is over: test (held out, every 8th frame from 1) "
+                    "or train (the frames the model was fitted to: a fit, not a measure of "
+                    "generalisation); test_frames counts them",
     "frames_covered": "test frames each metric family averages over, fewer than test_frames "
                       "where the scene's ground truth (or what a metric needs: depth, tool "
                       "pixels, highlights) covers fewer: image (psnr_*, ssim*, lpips), "
@@ -55,11 +58,12 @@ CONVENTIONS = {
 
 def evaluate_run(run: TrainedRun, options: EvalOptions,
                  progress: Callable[[int, int], None] | None = None) -> dict:
-    """All metrics of `run` as a JSON-ready dict (means over test frames); `progress(done,
-    total)` is called after each test frame."""
-    frames = run.scene.test_frames
+    """All metrics of `run` as a JSON-ready dict (means over the frames `options` name, the
+    test frames by default); `progress(done, total)` is called after each frame."""
+    frames = options.frames_of(run)
     background = run.background
-    fit_test_poses(run, background)
+    if options.frames == "test":
+        fit_test_poses(run, background)
     families = [family(run, options) for family in METRIC_FAMILIES]
     rows: dict[str, list[float]] = {}  # metric -> its value at each frame that has it
     covered: Counter[str] = Counter()  # test frames scored, per family
@@ -80,7 +84,8 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
             progress(done, len(frames))
 
     covered.update({family.name: family.pooled_frames() for family in families})
-    metrics: dict = {"test_frames": len(frames), "iteration": run.iteration,
+    metrics: dict = {"evaluated_on": options.frames, "test_frames": len(frames),
+                     "iteration": run.iteration,
                      "frames_covered": {family: count for family, count in covered.items()
                                         if count}}
     metrics.update({key: float(np.mean(values)) for key, values in rows.items()})

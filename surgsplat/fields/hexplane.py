@@ -223,5 +223,8 @@ def _sample(planes: Tensor, points: Tensor) -> Tensor:
 
 
 def _mean_square_per_plane(differences: Tensor) -> Tensor:
-    """[P, ...] -> scalar: the mean square of each plane's entries, summed over the P planes."""
-    return differences.square().flatten(1).mean(dim=1).sum()
+    """[P, ...] -> scalar: the mean square of each plane's entries, summed over the P planes;
+    0 for planes without entries (a time axis of 2 cells, one frame's, has no second
+    difference)."""
+    squares = differences.square().flatten(1)
+    return (squares.sum(dim=1) / max(squares.shape[1], 1)).sum()

@@ -1,4 +1,5 @@
-"""Evaluate a run on its test frames into RUN/metrics.json (see eval/run_metrics.py)."""
+"""Evaluate a run on its test frames (or its training frames) into RUN/metrics.json (see
+eval/run_metrics.py)."""
 
 from __future__ import annotations
 
@@ -17,12 +18,13 @@ from surgsplat.train.trainer import scene_identity
 def evaluate(run: TrainedRun, options: EvalOptions | None = None,
              progress: Callable[[int, int], None] | None = None) -> dict:
     """The run's metrics with its method and scene, written to RUN/metrics.json;
-    `progress(done, total)` after each test frame. A run with a tool field and no
+    `progress(done, total)` after each frame scored. A run with a tool field and no
     RUN/articulation.json gets one, when its scene has the true kinematics to score it."""
-    if not run.scene.test_frames:
-        raise DataError(run.scene.root, "has no test frame (frames 1, 9, 17, ...): evaluation "
-                                        "needs a scene of at least 2 frames")
     options = dataclasses.replace(options or EvalOptions(), estimate_articulation=articulate_run)
+    if not options.frames_of(run):
+        raise DataError(run.scene.root, "has no test frame (frames 1, 9, 17, ...): held-out "
+                                        "evaluation needs a scene of at least 2 frames; "
+                                        "`--frames train` scores the fit to the training frames")
     metrics = evaluate_run(run, options, progress)
     metrics["method"] = run.config.name
     metrics["scene"] = scene_identity(run.scene)

@@ -4,8 +4,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from bench_methods import (FIDELITY_CASES, FIDELITY_TARGETS, Target,  # noqa: E402
-                           mean_over_seeds)
+from bench_methods import (FIDELITY_CASES, FIDELITY_TARGETS, PHANTOMS,  # noqa: E402
+                           REAL_SCENES, SUITES, Target, mean_over_seeds)
 
 from surgsplat.methods.registry import PRESETS  # noqa: E402
 
@@ -57,3 +57,13 @@ def test_every_fidelity_target_names_a_case_of_the_suite_and_every_preset_is_mea
     assert all({target.case, *target.references} <= cases for target in FIDELITY_TARGETS)
     assert set(PRESETS) <= {case.method for case in FIDELITY_CASES}
     assert all(case.base in cases for case in FIDELITY_CASES if case.base)
+
+
+def test_every_suite_names_its_own_cases_and_known_scenes():
+    for name, suite in SUITES.items():
+        cases = {case.name for case in suite.cases}
+        assert suite.baseline in cases, name
+        assert all(case.base in cases for case in suite.cases if case.base), name
+        assert all({target.case, *target.references} <= cases for target in suite.targets), name
+        assert all(case.phantom in PHANTOMS or case.phantom in REAL_SCENES
+                   for case in suite.cases), name

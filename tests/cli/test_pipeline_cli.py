@@ -20,6 +20,15 @@ def test_train_eval_render(small_phantom, tmp_path, cli, one_error_line):
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["iteration"] == 9 and metrics["test_frames"] == 2
     assert "psnr_tissue" in metrics and "chamfer_mm" in metrics
+    assert metrics["evaluated_on"] == "test"
+
+    on_train = cli("eval", str(run), "--frames", "train")
+    assert on_train.returncode == 0, on_train.stderr
+    assert "train-frame metrics" in on_train.stdout
+    fit = json.loads((run / "metrics.json").read_text())
+    assert fit["evaluated_on"] == "train" and fit["test_frames"] == 14  # 16 frames, 2 held out
+    assert fit["psnr_tissue"] != metrics["psnr_tissue"]
+    assert "expected test or train" in one_error_line(cli("eval", str(run), "--frames", "all"))
 
     rendered = cli("render", str(run), "--fps", "5")
     assert rendered.returncode == 0, rendered.stderr

@@ -154,6 +154,20 @@ def test_hexplane_regularisers_vanish_on_smooth_planes():
     assert float(values["time_smoothness"].detach()) == pytest.approx(0.0, abs=1e-12)
 
 
+def test_hexplane_of_one_frame_has_a_finite_time_smoothness():
+    """One frame gives a time axis of 2 cells, which has no second difference: the smoothness
+    is 0 (it was the mean of nothing, NaN, and stopped every run on a single stereo pair)."""
+    field = make_field("hexplane", time_resolution=2)
+    with torch.no_grad():
+        for plane in field.time_planes:
+            plane.add_(torch.randn_like(plane))
+    values = field.regularisation()
+    assert float(values["time_smoothness"].detach()) == 0.0
+    assert math.isfinite(float(values["plane_tv"].detach()))
+    sum(values.values()).backward()
+    assert all(torch.isfinite(plane.grad).all() for plane in field.time_planes)
+
+
 def test_hexplane_lookup_at_grid_nodes_multiplies_the_six_cells():
     torch.manual_seed(0)
     field = make_field("hexplane", multires=(1,))
