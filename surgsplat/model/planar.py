@@ -16,7 +16,8 @@
   (1 - |grad D|)^2 of the measured depth D. The paper leaves the gradient's unit open; here it is
   the relative gradient |grad D| / D per pixel, clamped to [0, 1], so that the weight is
   unit-free (millimetres or metres alike) and falls to 0 at depth discontinuities (tool edges,
-  folds). Counted pixels: tissue pixels with a measured depth and a valid depth normal.
+  folds). Counted pixels: tissue pixels with a measured depth and a valid depth normal. The
+  sum runs in `image.normal_consistency` (fused native kernels).
 """
 
 from __future__ import annotations
