@@ -404,15 +404,17 @@ def surgsplat(*args: str) -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def phantom_dir(work: Path, key: str) -> Path:
+def phantom_dir(work: Path, key: str, shared_data: Path = SHARED_DATA) -> Path:
     """The scene of `key` under `work`: the phantom of PHANTOMS[key] generated there, or the
-    real sample of REAL_SCENES[key] imported there, unless it already is."""
+    real sample of REAL_SCENES[key] (under `shared_data`) imported there, unless it already
+    is."""
     if key in REAL_SCENES:
         folder, options, _ = REAL_SCENES[key]
-        source = SHARED_DATA / folder
+        source = shared_data / folder
         if not source.is_dir():
             raise SystemExit(f"{source}: no such folder; the real-data cases need the shared "
-                             f"samples (../shared/data beside the repository)")
+                             f"samples (--shared-data, default ../shared/data beside the "
+                             f"repository)")
         scene = work / f"scene-{key}"
         if not (scene / "poses_bounds.npy").is_file():
             surgsplat("import", str(source), "--out", str(scene),
@@ -433,10 +435,10 @@ def source_commit() -> str | None:
 
 
 def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
-             threads: int) -> dict:
+             threads: int, shared_data: Path = SHARED_DATA) -> dict:
     """Train and evaluate `case` (with `seed` for training and initialisation when given) in
     processes of their own, with `threads` threads; its metrics.json as a row."""
-    scene = phantom_dir(work, case.phantom)
+    scene = phantom_dir(work, case.phantom, shared_data)
     run_dir = work / (f"run-{case.name}" if seed is None else f"run-{case.name}-seed{seed}")
     subprocess.run(["rm", "-rf", str(run_dir)], check=True)
     settings = case.settings + (() if seed is None else (f"train.seed={seed}", f"init.seed={seed}"))
@@ -532,7 +534,8 @@ def run_all(cases: list[Case], seeds: list[int | None], args: argparse.Namespace
     threads = args.threads or max((os.cpu_count() or 1) // args.jobs, 1)
     runs = [(case, seed) for seed in seeds for case in cases]
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-        futures = [pool.submit(run_case, case, args.work, args.iters, seed, threads)
+        futures = [pool.submit(run_case, case, args.work, args.iters, seed, threads,
+                               args.shared_data)
                    for case, seed in runs]
         rows = []
         for future in futures:
@@ -549,6 +552,9 @@ def main() -> None:
     parser.add_argument("--iters", type=int, default=None, help="override preset iterations")
     parser.add_argument("--work", type=Path,
                         default=Path(tempfile.gettempdir()) / "surgsplat-bench-methods")
+    parser.add_argument("--shared-data", type=Path, default=SHARED_DATA,
+                        help="folder of the real samples the real-data cases import (default "
+                             "../shared/data beside the repository)")
     parser.add_argument("--cases", nargs="+", default=None,
                         help="run only these cases of the suite (default: all)")
     parser.add_argument("--seeds", nargs="+", type=int, default=None,
