@@ -148,11 +148,15 @@ def drawer() -> MethodConfig:
     so that the deformation moves the anchored Gaussians) and PhysioSplat's tool field (weight
     of its mask loss as in `physiosplat`), whose tool Gaussians are neither anchored nor faded
     by the SDF. Leave-one-out at full length (full phantom, 3000 iterations, seed 0;
-    psnr_tissue): drawer 38.13 (36.80 with seed 1), without the anchor 38.79, without the tool
-    field 36.90, endogsg 38.99 (39.27). The anchor's clips (centres into their face's band,
-    scales and tilt limited) cost about 2 dB, the price of a surface a simulator can use; the
-    tool field costs about 0.2 dB, and raises the visible depth RMSE from 0.06 to 0.23 mm
-    (issue 28)."""
+    psnr_tissue), with the tool field's earlier per-Gaussian gate: drawer 38.13 (36.80 with seed
+    1), without the anchor 38.79, without the tool field 36.90, endogsg 38.99 (39.27). The
+    anchor's clips (centres into their face's band, scales and tilt limited) cost about 2 dB,
+    the price of a surface a simulator can use; the tool field costs about 0.2 dB, and raises
+    the visible depth RMSE from 0.06 to 0.23 mm. With the per-pixel gate (commit 1b488a3)
+    drawer fell to 35.95 and 36.44 dB, psnr_occluded from 26.8/27.6 to 22.1/22.9 dB (a dark,
+    tool-shaped smear in the tool-free render of two test frames), cause not found; with the
+    mask loss at 1.0 (seed 0) 37.38 dB and psnr_occluded 24.1 dB, but a visible depth RMSE of
+    0.62 mm against 0.14 (issue 28)."""
     method = endogsg()
     method.name = "drawer"
     deformation = method.components.pop("deformation")
@@ -292,9 +296,10 @@ def surgsplat() -> MethodConfig:
     Leave-one-out (means of seeds 0 and 1 against the full preset's 39.46 dB, P2S 0.033 mm,
     normals 0.59 degrees): without the discs 40.59 dB (-0.32 and +2.56 dB by seed), P2S 0.199
     mm, normals 3.2 degrees; without the decomposition 37.74 dB (-2.3 and -1.1 dB by seed) and
-    the naive reflectance (0.159), its geometry unchanged; without the SDF (seed 0 only, against
-    40.73 dB) 39.18 dB, P2S 0.080 mm, depth RMSE 0.074 against 0.032 mm. The discs are kept for
-    the surface at a PSNR cost that one pair of seeds does not pin down (issue 33)."""
+    the naive reflectance (0.159), with a closer surface (depth RMSE 0.027, P2S 0.020, mesh P2S
+    0.023 mm: the decomposition costs geometry); without the SDF 38.85 dB (-1.55 and +0.33 dB
+    by seed), P2S 0.074 mm, depth RMSE 0.066 mm. The discs are kept for the surface at a PSNR
+    cost that one pair of seeds does not pin down (issue 33)."""
     gsg, planar, lumi = endogsg(), endoplanar(), lumistate()
     method = dataclasses.replace(gsg, name="surgsplat", gaussians=planar.gaussians)
     parts = gsg.components
