@@ -163,7 +163,6 @@ def drawer() -> MethodConfig:
     method.components = {"anchor": MeshAnchorConfig(), "deformation": deformation,
                          "tool": ToolFieldConfig(), **method.components}
     method.losses["mask"] = LossWeight(0.1)
-    method.losses["tool_photometric"] = LossWeight(0.0)
     return method
 
 
@@ -263,8 +262,7 @@ def physiosplat() -> MethodConfig:
                     "depth": DepthLossConfig()},
         losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT),
                 "plane_tv": LossWeight(1e-4), "time_smoothness": LossWeight(1e-3),
-                "mask": LossWeight(0.1), "tool_photometric": LossWeight(0.0),
-                "strain": LossWeight(1.3e-4),
+                "mask": LossWeight(0.1), "strain": LossWeight(1.3e-4),
                 "collision": LossWeight(1.3e-3), "volume": LossWeight(1.1e-8)},
         gaussians=GaussianConfig(sh_degree=0),
         init=InitConfig(fusion="mapf"))

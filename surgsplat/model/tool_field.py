@@ -45,7 +45,6 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from surgsplat.image.pinhole import backproject
-from surgsplat.losses.photometric import masked_l1
 from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
                                        InitialPoints, ParamGroup, RenderContext, SceneInfo,
@@ -303,7 +302,7 @@ class ToolField(Component):
         return {TOOL_CHANNEL: probability}
 
     def loss_names(self) -> tuple[str, ...]:
-        return ("mask", "tool_photometric")
+        return ("mask",)
 
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         """"mask": BCE of the rendered tool probability against the tool mask over the field
@@ -319,23 +318,12 @@ class ToolField(Component):
           psnr_occluded 12.8 dB), and move it out from behind the tool and shrink it.
         The hidden tissue learns from the pixels where it shows around the tool, and its
         position from the biomechanical energies, which act on the state, not through the
-        render.
-
-        "tool_photometric": the L1 of the rendered colour against the frame's over its tool
-        pixels in the field of view. The gate leaves it to the tool Gaussians: it gives the tool
-        its colours and makes it opaque where the frame shows it (the paper masks the tool
-        pixels out of every photometric term, and leaves the tool's colours to chance)."""
+        render."""
         frame = context.frame
-        terms = {}
-        if "mask" in active:
-            probability = context.output.extras[TOOL_CHANNEL][..., 0].clamp(1e-4, 1.0 - 1e-4)
-            inside = frame.fov
-            terms["mask"] = F.binary_cross_entropy(probability[inside],
-                                                   frame.tool[inside].float())
-        if "tool_photometric" in active:
-            terms["tool_photometric"] = masked_l1(context.output.rgb, frame.image,
-                                                  frame.tool & frame.fov)
-        return terms
+        probability = context.output.extras[TOOL_CHANNEL][..., 0].clamp(1e-4, 1.0 - 1e-4)
+        inside = frame.fov
+        loss = F.binary_cross_entropy(probability[inside], frame.tool[inside].float())
+        return {"mask": loss}
 
     # ---- densification ----
     @torch.no_grad()
