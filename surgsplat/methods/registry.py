@@ -253,7 +253,12 @@ def physiosplat() -> MethodConfig:
     instead of 2 mm, 0.69 mm and 39.07 dB; strain weight x30, 0.64 mm and 39.15 dB (visible
     depth RMSE 0.29 against 0.11 mm); without the collision term (weight 0) it was 0.77 mm,
     psnr_occluded 28.30 dB and the same collision count (18), so the collision term is not the
-    cause and, at this weight, changes nothing measurable (issue 28)."""
+    cause and, at this weight, changes nothing measurable. Sharpening the tool did not help
+    either (per-pixel gate, seed 0): the mask loss at 1.0 instead of the paper's 0.1 gave
+    psnr_tissue 40.03 dB (+1.0) but psnr_occluded 25.79, depth_rmse_occluded 2.29 mm and a
+    visible depth RMSE of 0.60 mm; an L1 of the render over the tool pixels (which the gate
+    leaves to the tool) gave 31.65 dB: the rigid tool, posed with per-frame errors, spread past
+    its silhouette over the tissue (issue 28)."""
     return MethodConfig(
         name="physiosplat",
         components={"deformation": HexPlaneConfig(volume_samples=512), "tool": ToolFieldConfig(),
