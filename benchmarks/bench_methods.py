@@ -314,7 +314,7 @@ SUITES = {
             Case(f"deform3dgs-{key}", "deform3dgs", key),
             Case(f"surgsplat-{key}", "surgsplat", key, base=f"deform3dgs-{key}"))),
         metrics=("psnr_tissue", "psnr_tissue_gain", "ssim_tissue", "depth_rmse_mm"),
-        baseline="deform3dgs-cholecseg8k",
+        baseline="deform3dgs-cholecseg8k", baseline_by_phantom=True,
         targets=tuple(Target(f"surgsplat-{key}", "psnr_tissue", True, 0.0,
                              (f"deform3dgs-{key}",)) for key in REAL_SCENES)),
     "endoplanar": Suite(
