@@ -116,19 +116,26 @@ SCARED_FOCAL_PX, SCARED_BASELINE_MM = 517.0, 4.2
 """The SCARED pair's camera, assumed (the sample ships no calibration): half the dataset's
 full-resolution focal length, and a da Vinci stereo baseline. They set the scene's scale in
 millimetres, the same for every case."""
+@dataclass(frozen=True)
+class RealScene:
+    """A real sample of ../shared/data and how a case imports and evaluates it."""
+
+    folder: str  # under the shared data folder
+    import_options: tuple[str, ...]  # of `surgsplat import`; {source} is the sample's folder
+    eval_options: tuple[str, ...] = ()  # of `surgsplat eval`
+
+
 REAL_SCENES = {
-    "cholecseg8k": ("cholecseg8k-clip", (
+    "cholecseg8k": RealScene("cholecseg8k-clip", (
         "--pattern", "*_endo.png", "--masks", "{source}", "--mask-pattern",
-        "*_endo_watershed_mask.png", "--tool-labels", "31,32", "--allow-missing-masks"), ()),
-    "scared": ("scared-stereo-sample/left", (
+        "*_endo_watershed_mask.png", "--tool-labels", "31,32", "--allow-missing-masks")),
+    "scared": RealScene("scared-stereo-sample/left", (
         "--right", "{source}/../right", "--focal", str(SCARED_FOCAL_PX),
         "--baseline", str(SCARED_BASELINE_MM)), ("--frames", "train")),
 }
 """Scenes imported from the real samples in ../shared/data (never copied into the repository):
 the CholecSeg8k clip with its tool labels (static camera, no depth) and the SCARED stereo pair
-(one frame, depth from stereo, no held-out frame: its metrics are of the training frame). Each
-is a folder under ../shared/data, its `surgsplat import` options ({source}: that folder) and
-its `surgsplat eval` options."""
+(one frame, depth from stereo, no held-out frame: its metrics are of the training frame)."""
 STAGE1_ONLY = ("losses.retinex.weight=0", "losses.bright_channel.weight=0")
 
 
@@ -409,8 +416,8 @@ def phantom_dir(work: Path, key: str, shared_data: Path = SHARED_DATA) -> Path:
     real sample of REAL_SCENES[key] (under `shared_data`) imported there, unless it already
     is."""
     if key in REAL_SCENES:
-        folder, options, _ = REAL_SCENES[key]
-        source = shared_data / folder
+        real = REAL_SCENES[key]
+        source = shared_data / real.folder
         if not source.is_dir():
             raise SystemExit(f"{source}: no such folder; the real-data cases need the shared "
                              f"samples (--shared-data, default ../shared/data beside the "
@@ -418,7 +425,7 @@ def phantom_dir(work: Path, key: str, shared_data: Path = SHARED_DATA) -> Path:
         scene = work / f"scene-{key}"
         if not (scene / "poses_bounds.npy").is_file():
             surgsplat("import", str(source), "--out", str(scene),
-                      *(option.format(source=source) for option in options))
+                      *(option.format(source=source) for option in real.import_options))
         return scene
     folder = work / f"phantom-{key}"
     if not (folder / "poses_bounds.npy").is_file():
@@ -450,7 +457,8 @@ def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
     train_cpu = surgsplat(*threading, "train", "--method", case.method, "--data", str(scene),
                           "--out", str(run_dir), *options)
     wall = time.perf_counter() - started
-    surgsplat(*threading, "eval", str(run_dir), *REAL_SCENES.get(case.phantom, ((), (), ()))[2])
+    real = REAL_SCENES.get(case.phantom)
+    surgsplat(*threading, "eval", str(run_dir), *(real.eval_options if real else ()))
     metrics = json.loads((run_dir / "metrics.json").read_text())
     if case.export_mesh:
         started = time.perf_counter()
