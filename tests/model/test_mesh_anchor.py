@@ -186,6 +186,26 @@ def test_anchored_gaussians_are_clipped_forward_and_straight_through_backward():
     torch.testing.assert_close(params["quats"].grad[:, 0], weights[:, 0], atol=0, rtol=0)
 
 
+def test_after_a_step_the_shape_parameters_are_the_clipped_shapes_and_the_centres_stay_raw():
+    ball = Ball(1.0)
+    anchor, gaussians = anchored_model(400, ball, MeshAnchorConfig(resolution=24))
+    anchor.before_render(gaussians, FrameTime(0, 0.0))
+    raw = state_of(gaussians)
+    clipped = anchor.transform(raw, gaussians, FrameTime(0, 0.0))
+    assert float((clipped.scales - raw.scales).detach().abs().max()) > 0.1  # the clip acts
+    raw_means = gaussians.params["means"].detach().clone()
+    with torch.no_grad():
+        anchor.after_step(gaussians, 1)  # not a re-anchoring step
+    projected = state_of(gaussians)
+    # float32: the scales go through log and exp
+    torch.testing.assert_close(projected.scales, clipped.scales.detach(), atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(projected.quats, clipped.quats.detach(), atol=1e-6, rtol=0)
+    again = anchor.transform(projected, gaussians, FrameTime(0, 0.0))
+    torch.testing.assert_close(again.scales, projected.scales, atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(again.quats, projected.quats, atol=1e-6, rtol=0)
+    assert torch.equal(gaussians.params["means"], raw_means)
+
+
 def test_reanchoring_after_densification_keeps_every_gaussian_on_a_valid_face():
     ball = Ball(1.0)
     anchor, gaussians = anchored_model(300, ball, MeshAnchorConfig(resolution=24))
