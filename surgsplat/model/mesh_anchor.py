@@ -187,9 +187,10 @@ class FaceGeometry:
                    inradius(corners))
 
     def __getitem__(self, index: Tensor) -> "FaceGeometry":
-        """The geometry of faces `index` [N] (gathered)."""
-        return FaceGeometry(self.origin[index], self.frame[index], self.p1[index],
-                            self.p2[index], self.inradius[index])
+        """The geometry of faces `index` [N] int64 (gathered; index_select is several times
+        faster than advanced indexing on the CPU)."""
+        return FaceGeometry(*(value.index_select(0, index) for value in
+                              (self.origin, self.frame, self.p1, self.p2, self.inradius)))
 
 
 def clip_tilt(quats: Tensor, normals: Tensor, max_tilt: float) -> Tensor:

@@ -26,13 +26,18 @@ def scene(small_phantom, tmp_path):
     return shutil.copytree(small_phantom, tmp_path / "scene")
 
 
-def count_decodes(monkeypatch) -> list[str]:
-    """The names of the threads on which load_scene decodes frames, one per frame."""
+def count_decodes(monkeypatch, meeting: threading.Barrier | None = None) -> list[str]:
+    """The names of the threads on which load_scene decodes frames, one per frame. With a
+    `meeting`, the first meeting.parties decodes wait for each other there: they can only pass
+    on as many threads (on a busy machine one thread could otherwise decode every frame before
+    a second one starts)."""
     threads: list[str] = []
     decode = scene_module.read_frame_files
 
     def counted(*args):
         threads.append(threading.current_thread().name)
+        if meeting is not None and len(threads) <= meeting.parties:
+            meeting.wait()
         return decode(*args)
 
     monkeypatch.setattr(scene_module, "read_frame_files", counted)
@@ -67,7 +72,7 @@ def test_frames_decode_on_several_threads_and_the_first_bad_one_is_named(scene, 
         width, height = Image.open(masks[index]).size
         Image.new("L", (width, height), 255).save(masks[index])
     monkeypatch.setattr(torch, "get_num_threads", lambda: 2)
-    decodes = count_decodes(monkeypatch)
+    decodes = count_decodes(monkeypatch, threading.Barrier(2, timeout=60))
     with pytest.raises(DataError, match="every pixel") as caught:
         load_scene(scene)
     assert caught.value.path == masks[3]
