@@ -290,10 +290,14 @@ class MeshAnchor(Component):
             anchors[rows] = nearest_faces(means, self.vertices, self.faces,
                                           self.config.candidate_faces).to(anchors.dtype)
 
+    def has_face(self, gaussians: GaussianModel) -> Tensor:
+        """[N] bool: the Gaussians with a valid face of the current mesh."""
+        anchors = gaussians.buffer_dict[ANCHOR_KEY]
+        return (anchors >= 0) & (anchors < self.faces.shape[0])
+
     def unanchored(self, gaussians: GaussianModel) -> Tensor:
         """Indices of the Gaussians without a valid face of the current mesh."""
-        anchors = gaussians.buffer_dict[ANCHOR_KEY]
-        return ((anchors < 0) | (anchors >= self.faces.shape[0])).nonzero()[:, 0]
+        return (~self.has_face(gaussians)).nonzero()[:, 0]
 
     def face_geometry(self, gaussians: GaussianModel) -> FaceGeometry:
         """The geometry of every Gaussian's face [N, ...] (the mesh's, computed when the mesh is
@@ -361,15 +365,14 @@ class MeshAnchor(Component):
 
     def _anchored_tissue(self, gaussians: GaussianModel) -> Tensor:
         """[N] bool: the tissue Gaussians with a face of the current mesh."""
-        anchors = gaussians.buffer_dict[ANCHOR_KEY]
-        valid = (anchors >= 0) & (anchors < self.faces.shape[0])
+        valid = self.has_face(gaussians)
         tissue = tissue_members(self._method, gaussians)
         return valid if tissue is None else valid & tissue
 
     def _clipped_shapes(self, scales: Tensor, quats: Tensor, faces: FaceGeometry,
                         radius: Tensor) -> tuple[Tensor, Tensor]:
-        """Scales [N, 3] and rotations [N, 4] clipped to their faces of radius [N] (forward
-        values only; see `straight_through`)."""
+        """Scales [N, 3] and rotations [N, 4] clipped to their faces of radius [N]: what
+        `transform` renders (straight-through) and `project_shapes` sets."""
         config = self.config
         in_face, normal = config.scale_limit, config.scale_limit * config.normal_scale_ratio
         limits = radius[:, None] * torch.tensor([in_face, in_face, normal])  # [N, 3]
