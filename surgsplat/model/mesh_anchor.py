@@ -21,21 +21,23 @@ and rotation are its parameters before the clip; the anchored Gaussian that is r
   Gaussian is symmetric), by the smallest rotation that brings it within the cone; the rotation
   about the normal is free;
 where r_k is the face's inradius, at least `min_face_radius` marching-cubes cells (slivers of
-marching cubes would otherwise pin their Gaussians to zero size). Every clip is straight-through:
-the forward pass uses the clipped value, the backward pass the identity (sg(clip(p)) + p - sg(p)),
-so the photometric gradient keeps moving the parameters, whose drift off the surface the SDF's
-projection loss pulls back.
+marching cubes would otherwise pin their Gaussians to zero size). The centre's clip is
+straight-through: the forward pass uses the clipped value, the backward pass the identity
+(sg(clip(p)) + p - sg(p)), so the photometric gradient keeps moving the raw centre, whose drift
+off the surface the SDF's projection loss pulls back.
 
-Deviation (issue 28): after every training step (`after_step`) the anchored tissue Gaussians'
-scale and rotation parameters are set to their clipped values (projected gradient), so each
-step starts from the shape that is rendered. With the straight-through clip alone nothing pulls
-them back: on a trained `drawer` run (full phantom, 3000 iterations) 39% of the normal scales
-had grown past their clip, rendering its own raw scales gave 18.2 dB against 34.5, and
-densification, which splits by the raw scales along the raw axes, worked from shapes that were
-never rendered. With the projection (full phantom, 3000 iterations, seed 0): psnr_occluded
-28.66 dB against 22.08, SDF mesh P2S median 0.065 mm against 0.095, psnr_tissue 36.14 against
-35.95 (within seed noise). The centres keep the straight-through clip: the SDF's losses use the
-raw centres (see `fields.sdf`).
+Deviation (issue 28): the scales and rotation are not clipped straight-through as the supplement
+does, but projected: the anchored tissue Gaussians' scale and rotation parameters are set to
+their clipped values after every training step (`after_step`) and whenever Gaussians get a face
+(`before_render`), so every render draws its parameters as they are and each step starts from
+the shape that is rendered (projected gradient; `transform` leaves the shapes alone). With the
+straight-through clip nothing pulls them back: on a trained `drawer` run (full phantom, 3000
+iterations) 39% of the normal scales had grown past their clip, rendering its own raw scales gave
+18.2 dB against 34.5, and densification, which splits by the raw scales along the raw axes,
+worked from shapes that were never rendered. With the projection (full phantom, 3000
+iterations, seed 0): psnr_occluded 28.66 dB against 22.08, SDF mesh P2S median 0.065 mm against
+0.095, psnr_tissue 36.14 against 35.95 (within seed noise). The centres keep the straight-through
+clip: the SDF's losses use the raw centres (see `fields.sdf`).
 
 How the Gaussians follow the deforming surface: this component's phase (anchor) comes first, so
 it turns the canonical Gaussians into anchored canonical Gaussians; the deformation field then
@@ -70,7 +72,7 @@ from surgsplat.model.membership import tissue_members
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
-                                       quaternion_to_matrix)
+                                       quaternion_third_axis)
 
 ANCHOR_KEY = "anchor_face"
 """Per-Gaussian buffer [N] int64: index of the face the Gaussian is anchored to; -1 = not
@@ -197,7 +199,7 @@ def clip_tilt(quats: Tensor, normals: Tensor, max_tilt: float) -> Tensor:
     """Rotations quats [N, 4] whose third axis is turned, by the smallest rotation, to within
     max_tilt radians of the line of normals [N, 3] (unit; either direction); unit quaternions."""
     quats = F.normalize(quats, dim=-1)
-    axis3 = quaternion_to_matrix(quats)[..., 2]  # [N, 3] third column
+    axis3 = quaternion_third_axis(quats)  # [N, 3]
     cosine = (axis3 * normals).sum(dim=-1)
     target = normals * torch.where(cosine < 0, -1.0, 1.0)[:, None]
     tilt = torch.arccos(cosine.abs().clamp(max=1.0))
@@ -336,12 +338,13 @@ class MeshAnchor(Component):
 
     def before_render(self, gaussians: GaussianModel, when: FrameTime) -> None:
         """Extract the first mesh when there is none yet, and anchor the Gaussians without a
-        face of the current mesh (the initial ones)."""
+        face of the current mesh (the initial ones), whose shapes are then projected."""
         if self.faces.shape[0] == 0:
             self.extract()
         missing = self.unanchored(gaussians)
         if missing.numel():
             self.anchor(gaussians, missing)
+            self.project_shapes(gaussians)
 
     def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
         if iteration % self.config.reanchor_every == 0:
@@ -351,17 +354,21 @@ class MeshAnchor(Component):
 
     @torch.no_grad()
     def project_shapes(self, gaussians: GaussianModel) -> None:
-        """Set the anchored tissue Gaussians' scale and rotation parameters to their clipped
-        values (projected gradient; see the module docstring)."""
+        """Clip the anchored tissue Gaussians' scale and rotation parameters in place (projected
+        gradient; see the module docstring): the two in-face scales to s_alpha r_k, the normal
+        scale to s_alpha s_beta r_k, the third axis to within phi_max of the face's normal."""
         if self.faces.shape[0] == 0:
             return
+        config = self.config
         params = gaussians.params
         faces = self.face_geometry(gaussians)
-        scales, quats = self._clipped_shapes(params["log_scales"].exp(), params["quats"], faces,
-                                             self.face_radius(faces))
-        rows = self._anchored_tissue(gaussians)
-        params["log_scales"][rows] = scales[rows].log()
-        params["quats"][rows] = quats[rows]
+        ratios = torch.tensor([1.0, 1.0, config.normal_scale_ratio])
+        log_limits = (self.face_radius(faces)[:, None] * (config.scale_limit * ratios)).log()
+        rows = self._anchored_tissue(gaussians)[:, None]  # [N, 1]
+        log_scales, quats = params["log_scales"], params["quats"]
+        log_scales.copy_(torch.where(rows, torch.minimum(log_scales, log_limits), log_scales))
+        tilted = clip_tilt(quats, faces.frame[..., 2], math.radians(config.max_tilt_deg))
+        quats.copy_(torch.where(rows, tilted, quats))
 
     def _anchored_tissue(self, gaussians: GaussianModel) -> Tensor:
         """[N] bool: the tissue Gaussians with a face of the current mesh."""
@@ -369,31 +376,16 @@ class MeshAnchor(Component):
         tissue = tissue_members(self._method, gaussians)
         return valid if tissue is None else valid & tissue
 
-    def _clipped_shapes(self, scales: Tensor, quats: Tensor, faces: FaceGeometry,
-                        radius: Tensor) -> tuple[Tensor, Tensor]:
-        """Scales [N, 3] and rotations [N, 4] clipped to their faces of radius [N]: what
-        `transform` renders (straight-through) and `project_shapes` sets."""
-        config = self.config
-        in_face, normal = config.scale_limit, config.scale_limit * config.normal_scale_ratio
-        limits = radius[:, None] * torch.tensor([in_face, in_face, normal])  # [N, 3]
-        return (torch.minimum(scales, limits),
-                clip_tilt(quats, faces.frame[..., 2], math.radians(config.max_tilt_deg)))
-
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
-        """The anchored canonical Gaussians (see the module docstring); tool Gaussians as they
-        are, and every Gaussian before the first mesh."""
+        """The anchored canonical Gaussians: centres clipped straight-through, shapes as their
+        parameters, which `project_shapes` keeps clipped (see the module docstring); tool
+        Gaussians as they are, and every Gaussian before the first mesh."""
         if self.faces.shape[0] == 0:
             return state
         faces = self.face_geometry(gaussians)
-        radius = self.face_radius(faces)  # [N]
-        means = self._clipped_means(state.means, faces, radius)
-        scales, quats = self._clipped_shapes(state.scales, state.quats, faces, radius)
+        means = self._clipped_means(state.means, faces, self.face_radius(faces))
         tissue = tissue_members(self._method, gaussians)
         if tissue is not None:
             means = torch.where(tissue[:, None], means, state.means)
-            scales = torch.where(tissue[:, None], scales, state.scales)
-            quats = torch.where(tissue[:, None], quats, state.quats)
-        return state.replace(means=straight_through(means, state.means),
-                             scales=straight_through(scales, state.scales),
-                             quats=straight_through(quats, state.quats))
+        return state.replace(means=straight_through(means, state.means))

@@ -14,6 +14,13 @@ def quaternion_to_matrix(quats: Tensor) -> Tensor:
     ], dim=-1).reshape(*quats.shape[:-1], 3, 3)
 
 
+def quaternion_third_axis(quats: Tensor) -> Tensor:
+    """[..., 4] quaternions (w, x, y, z), normalised here -> [..., 3] the third column of
+    `quaternion_to_matrix` (the rotated z axis), at a third of its cost."""
+    w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
+    return torch.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], dim=-1)
+
+
 def quaternion_multiply(a: Tensor, b: Tensor) -> Tensor:
     """Hamilton product a b of quaternions [..., 4] (w, x, y, z): the rotation b, then a."""
     aw, ax, ay, az = a.unbind(-1)

@@ -23,7 +23,7 @@ from surgsplat.model.mesh_anchor import (ANCHOR_KEY, MeshAnchor, MeshAnchorConfi
                                          planar_corners, to_face_local)
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
-from surgsplat.render.rotation import quaternion_to_matrix
+from surgsplat.render.rotation import quaternion_third_axis, quaternion_to_matrix
 from surgsplat.train.per_gaussian import append_gaussians
 from surgsplat.train.trainer import Trainer
 
@@ -161,49 +161,64 @@ def within_band(anchor: MeshAnchor, gaussians: GaussianModel, state: GaussianSta
     scales = state.scales.detach().double()
     assert torch.all(scales[:, :2] <= limit[:, None] + tolerance)
     assert torch.all(scales[:, 2] <= limit * config.normal_scale_ratio + tolerance)
+    axis3 = quaternion_to_matrix(state.quats.detach().double())[..., 2]
+    cosine = (axis3 * face_frames(corners)[..., 2]).sum(dim=1).abs().clamp(max=1.0)
+    assert float(torch.arccos(cosine).max()) <= math.radians(config.max_tilt_deg) + 1e-4
 
 
-def test_anchored_gaussians_are_clipped_forward_and_straight_through_backward():
+def test_anchored_centres_are_clipped_straight_through_and_the_shapes_are_projected():
     ball = Ball(1.0)
     anchor, gaussians = anchored_model(600, ball, MeshAnchorConfig(resolution=24))
     raw = state_of(gaussians)
     assert anchor.transform(raw, gaussians, FrameTime(0, 0.0)) is raw  # no mesh yet
+    log_scales = gaussians.params["log_scales"].detach().clone()
     anchor.before_render(gaussians, FrameTime(0, 0.0))
     assert anchor.unanchored(gaussians).numel() == 0  # anchored before the first render
+    assert float((log_scales - gaussians.params["log_scales"].detach()).max()) > 0.1  # projected
+    raw = state_of(gaussians)
     state = anchor.transform(raw, gaussians, FrameTime(0, 0.0))
     # resolution 24 over a box of side 3: cells of 0.125; floats: tolerance 1e-5
     within_band(anchor, gaussians, state, 1e-5)
-    raw = gaussians.params["means"].detach()
-    assert float((state.means.detach() - raw).norm(dim=1).max()) > 0.05  # the clip acted
+    assert state.scales is raw.scales and state.quats is raw.quats  # the parameters, drawn
+    assert float((state.means.detach() - raw.means.detach()).norm(dim=1).max()) > 0.05
     weights = torch.randn(600, 3)
     loss = (weights * state.means).sum() + (weights * state.scales).sum() \
         + (weights[:, :1] * state.quats).sum()
     loss.backward()
     params = gaussians.params
-    torch.testing.assert_close(params["means"].grad, weights, atol=0, rtol=0)
+    torch.testing.assert_close(params["means"].grad, weights, atol=0, rtol=0)  # straight-through
     torch.testing.assert_close(params["log_scales"].grad, weights * params["log_scales"].exp(),
-                               atol=1e-6, rtol=1e-6)  # d exp(s) / ds, then the identity
+                               atol=1e-6, rtol=1e-6)
     torch.testing.assert_close(params["quats"].grad[:, 0], weights[:, 0], atol=0, rtol=0)
 
 
-def test_after_a_step_the_shape_parameters_are_the_clipped_shapes_and_the_centres_stay_raw():
+def test_after_a_step_the_shapes_are_projected_again_and_the_centres_stay_raw():
     ball = Ball(1.0)
     anchor, gaussians = anchored_model(400, ball, MeshAnchorConfig(resolution=24))
     anchor.before_render(gaussians, FrameTime(0, 0.0))
-    raw = state_of(gaussians)
-    clipped = anchor.transform(raw, gaussians, FrameTime(0, 0.0))
-    assert float((clipped.scales - raw.scales).detach().abs().max()) > 0.1  # the clip acts
-    raw_means = gaussians.params["means"].detach().clone()
-    with torch.no_grad():
-        anchor.after_step(gaussians, 1)  # not a re-anchoring step
-    projected = state_of(gaussians)
-    # float32: the scales go through log and exp
-    torch.testing.assert_close(projected.scales, clipped.scales.detach(), atol=1e-6, rtol=1e-5)
-    torch.testing.assert_close(projected.quats, clipped.quats.detach(), atol=1e-6, rtol=0)
-    again = anchor.transform(projected, gaussians, FrameTime(0, 0.0))
-    torch.testing.assert_close(again.scales, projected.scales, atol=1e-6, rtol=1e-5)
-    torch.testing.assert_close(again.quats, projected.quats, atol=1e-6, rtol=0)
-    assert torch.equal(gaussians.params["means"], raw_means)
+    params = gaussians.params
+    generator = torch.Generator().manual_seed(4)
+    with torch.no_grad():  # an optimiser step that grows most past their clips, and turns them
+        params["log_scales"] += torch.randn(400, 3, generator=generator)
+        params["quats"] += torch.randn(400, 4, generator=generator)
+    stepped = {name: params[name].detach().clone() for name in ("means", "log_scales", "quats")}
+    anchor.after_step(gaussians, 1)  # not a re-anchoring step
+    within_band(anchor, gaussians, anchor.transform(state_of(gaussians), gaussians,
+                                                    FrameTime(0, 0.0)), 1e-5)
+    assert torch.equal(params["means"], stepped["means"])
+    assert float((stepped["log_scales"] - params["log_scales"].detach()).max()) > 0.1  # clipped
+    assert torch.all(params["log_scales"] <= stepped["log_scales"])  # only ever shrunk
+    assert (params["log_scales"] == stepped["log_scales"]).any()  # a scale within its clip
+    projected = {name: params[name].detach().clone() for name in ("log_scales", "quats")}
+    anchor.after_step(gaussians, 2)  # idempotent
+    torch.testing.assert_close(params["log_scales"], projected["log_scales"], atol=0, rtol=0)
+    torch.testing.assert_close(params["quats"], projected["quats"], atol=1e-6, rtol=0)
+
+
+def test_the_third_axis_is_the_rotation_matrix_third_column():
+    quats = torch.randn(200, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(5))
+    torch.testing.assert_close(quaternion_third_axis(quats), quaternion_to_matrix(quats)[..., 2],
+                               atol=1e-12, rtol=0)
 
 
 def test_reanchoring_after_densification_keeps_every_gaussian_on_a_valid_face():
