@@ -120,11 +120,6 @@ def to_face_local(points: Tensor, corners: Tensor) -> Tensor:
     return to_local(points, corners[..., 0, :], face_frames(corners))
 
 
-def from_face_local(local: Tensor, corners: Tensor) -> Tensor:
-    """Face coordinates [..., 3] in the frames of faces corners [..., 3, 3] -> world points."""
-    return to_world(local, corners[..., 0, :], face_frames(corners))
-
-
 def to_local(points: Tensor, origin: Tensor, frame: Tensor) -> Tensor:
     """World points [..., 3] -> coordinates [..., 3] in frames [..., 3, 3] (axes as columns)
     placed at origin [..., 3]."""
@@ -148,11 +143,6 @@ def inradius(corners: Tensor) -> Tensor:
     double_area = torch.cross(v1 - v0, v2 - v0, dim=-1).norm(dim=-1)
     perimeter = (v1 - v0).norm(dim=-1) + (v2 - v1).norm(dim=-1) + (v0 - v2).norm(dim=-1)
     return double_area / perimeter.clamp_min(1e-30)
-
-
-def clip_to_face(local: Tensor, corners: Tensor, band: Tensor) -> Tensor:
-    """Face coordinates [..., 3] clipped into face corners [..., 3, 3]: see `clip_in_triangle`."""
-    return clip_in_triangle(local, *planar_corners(corners), band)
 
 
 def clip_in_triangle(local: Tensor, p1: Tensor, p2: Tensor, band: Tensor) -> Tensor:
@@ -213,19 +203,19 @@ def straight_through(clipped: Tensor, raw: Tensor) -> Tensor:
     return raw + (clipped - raw).detach()
 
 
-def nearest_faces(points: Tensor, vertices: Tensor, faces: Tensor, candidates: int) -> Tensor:
+def nearest_faces(points: Tensor, centroids: Tensor, geometry: FaceGeometry,
+                  candidates: int) -> Tensor:
     """[P] index of the face nearest to each point [P, 3], among the `candidates` faces of
-    nearest centroid; the distance is to the point clipped into the face (`clip_to_face`)."""
-    centroids = vertices[faces].mean(dim=1)
-    k = min(candidates, faces.shape[0])
+    nearest centroid (centroids [F, 3], geometry of the F faces); the distance is to the point
+    clipped into the face (`clip_in_triangle`), measured in face coordinates (the frames are
+    orthonormal)."""
+    count, k = points.shape[0], min(candidates, centroids.shape[0])
     _, index = cKDTree(centroids.double().numpy()).query(points.detach().double().numpy(), k=k)
-    index = torch.from_numpy(np.asarray(index, dtype=np.int64).reshape(points.shape[0], k))
-    corners = vertices[faces[index]]  # [P, k, 3, 3]
-    near = points.detach()[:, None].expand(-1, k, 3)
-    local = to_face_local(near, corners)
-    on_face = from_face_local(clip_to_face(local, corners, torch.zeros(local.shape[:-1])),
-                              corners)
-    best = (on_face - near).norm(dim=-1).argmin(dim=1)
+    index = torch.from_numpy(np.asarray(index, dtype=np.int64).reshape(count, k))
+    faces = geometry[index.reshape(-1)]  # [P k, ...]
+    local = to_local(points.detach().repeat_interleave(k, dim=0), faces.origin, faces.frame)
+    on_face = clip_in_triangle(local, faces.p1, faces.p2, torch.zeros(count * k))
+    best = (on_face - local).norm(dim=-1).view(count, k).argmin(dim=1)
     return index.gather(1, best[:, None])[:, 0]
 
 
@@ -289,7 +279,8 @@ class MeshAnchor(Component):
         rows = torch.arange(anchors.shape[0]) if rows is None else rows
         if rows.numel():
             means = gaussians.params["means"][rows]
-            anchors[rows] = nearest_faces(means, self.vertices, self.faces,
+            centroids = self.vertices[self.faces].mean(dim=1)
+            anchors[rows] = nearest_faces(means, centroids, self._geometry,
                                           self.config.candidate_faces).to(anchors.dtype)
 
     def has_face(self, gaussians: GaussianModel) -> Tensor:

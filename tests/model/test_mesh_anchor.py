@@ -19,8 +19,8 @@ from surgsplat.model.component import Component, ComponentConfig, FrameTime, Ren
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.mesh_anchor import (ANCHOR_KEY, MeshAnchor, MeshAnchorConfig, clip_tilt,
-                                         clip_to_face, face_frames, from_face_local, inradius,
-                                         planar_corners, to_face_local)
+                                         clip_in_triangle, face_frames, inradius,
+                                         planar_corners, to_face_local, to_world)
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.rotation import quaternion_third_axis, quaternion_to_matrix
@@ -52,7 +52,7 @@ def test_face_local_coordinates_round_trip_in_float64():
     torch.testing.assert_close(frames.transpose(1, 2) @ frames, eye, atol=1e-12, rtol=0)
     assert torch.all(torch.linalg.det(frames) > 0)  # right-handed
     local = to_face_local(points, corners)
-    torch.testing.assert_close(from_face_local(local, corners), points, atol=1e-12, rtol=0)
+    torch.testing.assert_close(to_world(local, corners[:, 0], face_frames(corners)), points, atol=1e-12, rtol=0)
     # v1 lies on the x axis, v2 above it, every corner in the plane z = 0
     corner_local = to_face_local(corners, corners[:, None].expand(-1, 3, 3, 3))
     torch.testing.assert_close(corner_local[:, :, 2], torch.zeros(500, 3, dtype=torch.float64),
@@ -65,7 +65,7 @@ def test_clip_keeps_positions_in_the_face_and_offsets_in_their_band():
     corners = random_faces(400, generator)
     local = torch.randn(400, 3, dtype=torch.float64, generator=generator) * 4.0
     band = inradius(corners) * 2.0
-    clipped = clip_to_face(local, corners, band)
+    clipped = clip_in_triangle(local, *planar_corners(corners), band)
     assert torch.all(clipped[:, 2].abs() <= band + 1e-12)
     assert torch.all(barycentric(clipped[:, :2], corners) >= -1e-9)
     # a point already inside the triangle and the band is left where it is
@@ -73,7 +73,7 @@ def test_clip_keeps_positions_in_the_face_and_offsets_in_their_band():
     weights = weights / weights.sum(dim=1, keepdim=True)
     inside = to_face_local((weights[:, :, None] * corners).sum(dim=1), corners)
     inside[:, 2] = band * 0.5
-    torch.testing.assert_close(clip_to_face(inside, corners, band), inside, atol=1e-10, rtol=0)
+    torch.testing.assert_close(clip_in_triangle(inside, *planar_corners(corners), band), inside, atol=1e-10, rtol=0)
 
 
 def test_tilt_clip_bounds_the_angle_to_the_normal_and_keeps_small_tilts():
