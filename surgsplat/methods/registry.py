@@ -147,27 +147,17 @@ def drawer() -> MethodConfig:
     """Endo-GSG's components and weights with its Gaussians anchored on the SDF's mesh (first,
     so that the deformation moves the anchored Gaussians) and PhysioSplat's tool field (weight
     of its mask loss as in `physiosplat`), whose tool Gaussians are neither anchored nor faded
-    by the SDF. Leave-one-out at full length (full phantom, 3000 iterations, seed 0;
-    psnr_tissue), with the tool field's earlier per-Gaussian gate: drawer 38.13 (36.80 with seed
-    1), without the anchor 38.79, without the tool field 36.90, endogsg 38.99 (39.27). The
-    anchor's clips (centres into their face's band, scales and tilt limited) cost about 2 dB,
-    the price of a surface a simulator can use; the tool field costs about 0.2 dB, and raises
-    the visible depth RMSE from 0.06 to 0.23 mm. With the per-pixel gate (commit 1b488a3)
-    drawer fell to 35.95 and 36.44 dB, psnr_occluded from 26.8/27.6 to 22.1/22.9 dB (a dark,
-    tool-shaped smear in the tool-free render of two test frames), cause not found; with the
-    mask loss at 1.0 (seed 0) 37.38 dB and psnr_occluded 24.1 dB, but a visible depth RMSE of
-    0.62 mm against 0.14; with an L1 of the render over the tool pixels 30.90 dB (see
-    physiosplat). The smear was a hole: no tissue Gaussian had stayed under the tool's
-    never-seen stretch. With the anchored shapes projected onto their clips after every step
-    (`model.mesh_anchor`; seed 0): psnr_occluded 28.66 dB, psnr_tissue 36.14. Without the
-    normal-scale and tilt clips (s_beta 1, phi_max 90 degrees, straight-through; seed 0):
-    37.35 dB, so the flat, face-aligned shapes the supplement asks for cost about 1.4 dB here;
-    both together, shapes projected and those two clips open: 38.27 dB, psnr_occluded 28.79
-    (seed 0; the supplement gives no value for s_beta or phi_max, and the defaults stay until
-    two seeds say otherwise).
-    What is left is motion: in test frames 1, 9 and 33 the render lies 0.7-0.8 px off the
-    frame (shifting it back gains 2.5-3.3 dB there), where endogsg's is within 0.1 px
-    (issue 28)."""
+    by the SDF. The anchor's shapes are projected onto their clips after every step, and its
+    normal-scale and tilt clips are open (`model.mesh_anchor` gives both deviations and their
+    A/Bs). History at full length (full phantom, 3000 iterations, psnr_tissue of seeds 0 and
+    1): with straight-through clips, s_beta 0.25 and phi_max 30 degrees, and the tool field's
+    per-Gaussian gate, 38.13 / 36.80 dB (endogsg 38.99 / 39.27; seed 0 without the anchor
+    38.79, without the tool field 36.90); with the per-pixel gate 35.95 / 36.44 and a hole in
+    the tool-free render (no tissue Gaussian had stayed under the tool's never-seen stretch:
+    psnr_occluded 22.1 / 22.9); with the shapes projected 36.14 / 36.70 (psnr_occluded 28.66 /
+    28.34); with the two clips open as well 38.27 / 37.02. What is left is motion: the test
+    frames lose against endogsg on vessel edges around the pulled tissue (frame 9 of seed 0,
+    with s_beta 0.5 and phi_max 60: 38.3 dB against 43.8), not in the tool-free render's tool pixels (issue 28)."""
     method = endogsg()
     method.name = "drawer"
     deformation = method.components.pop("deformation")
@@ -344,8 +334,8 @@ PRESETS: dict[str, Preset] = {
                       "its opacity, SDA / projection / orientation / Eikonal losses, occlusion "
                       "importance map", endogsg),
     "drawer": Preset("DRAWER: Endo-GSG with Gaussians anchored on the faces of the SDF's "
-                     "marching-cubes mesh (clipped face-local offset, scale and tilt with "
-                     "straight-through gradients, re-anchored every 100 steps) and PhysioSplat's "
+                     "marching-cubes mesh (face-local offset clipped straight-through, scales "
+                     "projected onto their clip, re-anchored every 100 steps) and PhysioSplat's "
                      "tool field", drawer),
     "lumistate": Preset("LumiState: reflectance x illumination (UNet on max(R,G,B), per-Gaussian "
                         "SH modulation from its embedding, Retinex and bright-channel losses "

@@ -30,6 +30,10 @@ from surgsplat.train.trainer import Trainer
 pytest.importorskip("skimage")
 
 
+FLAT_ANCHORS = MeshAnchorConfig(resolution=24, normal_scale_ratio=0.25, max_tilt_deg=30.0)
+"""Every clip acting: the normal scale below the in-face ones, the tilt bounded."""
+
+
 def random_faces(count: int, generator: torch.Generator) -> Tensor:
     """[count, 3, 3] float64 triangles of random shape, position and orientation."""
     return torch.randn(count, 3, 3, dtype=torch.float64, generator=generator) * 2.0
@@ -168,7 +172,7 @@ def within_band(anchor: MeshAnchor, gaussians: GaussianModel, state: GaussianSta
 
 def test_anchored_centres_are_clipped_straight_through_and_the_shapes_are_projected():
     ball = Ball(1.0)
-    anchor, gaussians = anchored_model(600, ball, MeshAnchorConfig(resolution=24))
+    anchor, gaussians = anchored_model(600, ball, FLAT_ANCHORS)
     raw = state_of(gaussians)
     assert anchor.transform(raw, gaussians, FrameTime(0, 0.0)) is raw  # no mesh yet
     log_scales = gaussians.params["log_scales"].detach().clone()
@@ -194,7 +198,7 @@ def test_anchored_centres_are_clipped_straight_through_and_the_shapes_are_projec
 
 def test_after_a_step_the_shapes_are_projected_again_and_the_centres_stay_raw():
     ball = Ball(1.0)
-    anchor, gaussians = anchored_model(400, ball, MeshAnchorConfig(resolution=24))
+    anchor, gaussians = anchored_model(400, ball, FLAT_ANCHORS)
     anchor.before_render(gaussians, FrameTime(0, 0.0))
     params = gaussians.params
     generator = torch.Generator().manual_seed(4)
@@ -223,7 +227,7 @@ def test_the_third_axis_is_the_rotation_matrix_third_column():
 
 def test_reanchoring_after_densification_keeps_every_gaussian_on_a_valid_face():
     ball = Ball(1.0)
-    anchor, gaussians = anchored_model(300, ball, MeshAnchorConfig(resolution=24))
+    anchor, gaussians = anchored_model(300, ball, FLAT_ANCHORS)
     anchor.before_render(gaussians, FrameTime(0, 0.0))
     optimizer = torch.optim.Adam([{"name": name, "params": [param]}
                                   for name, param in gaussians.params.items()])
@@ -256,7 +260,7 @@ def test_the_mesh_export_uses_the_anchored_centres_and_the_sdf_the_raw_means():
     pull a drifting mean back (on the full phantom that lost half the mesh, issue 28)."""
     field = BallField(SDFConfig(resolutions=(2,)))
     field.box.copy_(torch.tensor([[-1.5] * 3, [1.5] * 3]))
-    anchor, gaussians = anchored_model(400, Ball(1.0), MeshAnchorConfig(resolution=24))
+    anchor, gaussians = anchored_model(400, Ball(1.0), FLAT_ANCHORS)
     model = SplatModel(gaussians, {"anchor": anchor, "sdf": field})
     when = FrameTime(3, 0.5)
     model.before_render(when)
