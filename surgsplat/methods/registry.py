@@ -155,9 +155,15 @@ def drawer() -> MethodConfig:
     38.79, without the tool field 36.90); with the per-pixel gate 35.95 / 36.44 and a hole in
     the tool-free render (no tissue Gaussian had stayed under the tool's never-seen stretch:
     psnr_occluded 22.1 / 22.9); with the shapes projected 36.14 / 36.70 (psnr_occluded 28.66 /
-    28.34); with the two clips open as well 38.27 / 37.02. What is left is motion: the test
-    frames lose against endogsg on vessel edges around the pulled tissue (frame 9 of seed 0,
-    with s_beta 0.5 and phi_max 60: 38.3 dB against 43.8), not in the tool-free render's tool pixels (issue 28)."""
+    28.34); with the two clips open as well (b8ac935) 38.61 / 36.60, beside endogsg 39.41 /
+    36.06 in the same run, at 1.39x its CPU time. Leave-one-out at b8ac935 (2 seeds): without
+    the tool field 39.04 / 37.74 (the anchor alone is 0.66 dB above endogsg, at 1.05x its CPU
+    time), without the anchor 37.72 / 37.91: the tool field is what costs now (about 0.8 dB,
+    and 1.3x the CPU time), and it is what the articulation needs. With it, frames 8-10 (the
+    tool's fastest approach) lose most, on vessel edges over much of the image (frame 9, seed
+    0, without the anchor: 36.0 dB against endogsg's 43.8), also in the tool-free render;
+    cause not found (issue 28). Re-anchoring after every step the Gaussians whose centre left
+    its triangle was no better (seed 0: 37.80 dB against 38.61)."""
     method = endogsg()
     method.name = "drawer"
     deformation = method.components.pop("deformation")
@@ -289,8 +295,11 @@ def surgsplat() -> MethodConfig:
     - the decomposition: reflectance_error 0.47x of the naive baseline's.
     Left out, as measured: PhysioSplat's tool field and lobe (psnr_occluded and depth below
     endogaussian's, specular PSNR no better) and DRAWER's mesh anchor (about 2 dB of
-    psnr_tissue). The discs' inverse-depth form and MOG2 fusion give way to Endo-GSG's depth L1
-    and MAPF fusion, which the SDF preset was measured with.
+    psnr_tissue when this preset was composed; since its shapes are projected and its
+    normal-scale and tilt clips open, the anchor alone measures 0.66 dB above endogsg, 2 seeds,
+    see `drawer`: a candidate not yet tried here). The discs' inverse-depth form and MOG2
+    fusion give way to Endo-GSG's depth L1 and MAPF fusion, which the SDF preset was measured
+    with.
     Measured (full phantom, 3000 iterations, issue 33): mean of seeds 0 and 1, psnr_tissue 39.46
     dB (40.73 and 38.20: the widest seed spread of any preset, from three of eight test frames),
     Gaussian P2S median 0.033 mm (opacity-weighted; endogsg 0.170, endoplanar 0.229), normal
