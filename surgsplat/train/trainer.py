@@ -235,7 +235,7 @@ class Trainer:
         optimizer = torch.optim.Adam(
             [{"name": g.name, "params": g.params, "lr": g.lr} for g in groups],
             eps=1e-15, fused=True)
-        return optimizer, {g.name: g for g in groups if g.lr_final is not None}
+        return optimizer, {g.name: g for g in groups if g.lr_final is not None and g.lr > 0}
 
     def _update_learning_rates(self) -> None:
         progress = min(self.iteration / max(self.config.train.iterations, 1), 1.0)

@@ -198,6 +198,12 @@ def test_hexplane_param_groups_cover_all_parameters_once():
     assert field.per_gaussian_attributes(5) == {} and field.attribute_lrs() == {}
 
 
+def test_hexplane_rates_decay_to_lr_decay_of_their_start():
+    field = make_field("hexplane")
+    for group in field.param_groups():
+        assert group.lr_final == pytest.approx(group.lr * field.config.lr_decay, rel=1e-12)
+
+
 def test_mean_offsets_scale_with_the_bounds():
     """The same weights give mean offsets proportional to the bounds' half-diagonal."""
     field = GaussianBasisConfig().build()

@@ -52,6 +52,20 @@ def test_loss_falls(small_phantom, tmp_path, method):
                                         if weight["weight"] and weight["start"] * 60 <= 60}
 
 
+def test_every_scheduled_rate_ends_at_its_final_rate_and_a_frozen_group_stays_frozen(
+        small_phantom, tmp_path):
+    """endogaussian decays the means and its HexPlane field; a rate set to 0 is left at 0."""
+    config = small_config("endogaussian", 4)
+    config.components["deformation"].mlp_lr = 0.0
+    trainer = Trainer(config, load_scene(small_phantom), tmp_path / "run")
+    trainer.fit()
+    rates = {group["name"]: group["lr"] for group in trainer.optimizer.param_groups}
+    assert {"means", "hexplane_grid"} <= set(trainer.schedules)
+    for name, schedule in trainer.schedules.items():
+        assert rates[name] == pytest.approx(schedule.lr_final, rel=1e-9), name
+    assert rates["hexplane_mlp"] == 0.0 and "hexplane_mlp" not in trainer.schedules
+
+
 def rendered_test_frame(trainer: Trainer) -> torch.Tensor:
     frame = next(f for f in trainer.scene.frames if f.is_test)
     with torch.no_grad():
