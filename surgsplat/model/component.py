@@ -249,6 +249,11 @@ class Component(nn.Module):
         """Adam learning rate of each per-Gaussian attribute this component owns, by name."""
         return {}
 
+    def attribute_lr_finals(self) -> dict[str, float]:
+        """The rate at the end of the run of those of its attributes whose rate decays
+        (exponentially, from its `attribute_lrs` rate), by name; the others keep theirs."""
+        return {}
+
     def initial_buffers(self, context: SetupContext) -> dict[str, Tensor]:
         """Non-learnable per-Gaussian tensors, name -> [M, ...] for the M initial points
         (`GaussianModel.buffer_dict`): a clone or split child copies its parent's rows, pruning

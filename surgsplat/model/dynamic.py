@@ -205,6 +205,13 @@ class SplatModel(nn.Module):
             lrs.update(component.attribute_lrs())
         return lrs
 
+    def attribute_lr_finals(self) -> dict[str, float]:
+        """Final learning rates of the components' decaying per-Gaussian attributes, by name."""
+        finals: dict[str, float] = {}
+        for component in self.components.values():
+            finals.update(component.attribute_lr_finals())
+        return finals
+
     def component_param_groups(self) -> list[ParamGroup]:
         """Optimiser groups of every component's own parameters."""
         return [group for component in self.components.values()

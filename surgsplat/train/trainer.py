@@ -218,7 +218,9 @@ class Trainer:
                  "log_scales": (lr.log_scales, None), "quats": (lr.quats, None),
                  "opacity_logits": (lr.opacity_logits, None), "sh_dc": (lr.sh_dc, None),
                  "sh_rest": (lr.sh_rest, None)}
-        rates.update({name: (rate, None) for name, rate in self.model.attribute_lrs().items()})
+        finals = self.model.attribute_lr_finals()
+        rates.update({name: (rate, finals.get(name))
+                      for name, rate in self.model.attribute_lrs().items()})
         groups = []
         for name, param in self.model.gaussians.params.items():
             if name not in rates:

@@ -204,6 +204,14 @@ def test_hexplane_rates_decay_to_lr_decay_of_their_start():
         assert group.lr_final == pytest.approx(group.lr * field.config.lr_decay, rel=1e-12)
 
 
+def test_gaussian_basis_attribute_rates_decay_to_lr_decay_of_their_start():
+    field = GaussianBasisConfig(lr_decay=0.25).build()
+    finals = field.attribute_lr_finals()
+    assert set(finals) == set(field.attribute_lrs())
+    for name, rate in field.attribute_lrs().items():
+        assert finals[name] == pytest.approx(0.25 * rate, rel=1e-12)
+
+
 def test_mean_offsets_scale_with_the_bounds():
     """The same weights give mean offsets proportional to the bounds' half-diagonal."""
     field = GaussianBasisConfig().build()

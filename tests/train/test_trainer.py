@@ -52,18 +52,24 @@ def test_loss_falls(small_phantom, tmp_path, method):
                                         if weight["weight"] and weight["start"] * 60 <= 60}
 
 
+@pytest.mark.parametrize("method, decaying, frozen", [
+    ("endogaussian", {"means", "hexplane_grid"}, ("mlp_lr", "hexplane_mlp")),
+    ("deform3dgs", {"means", "basis_weights", "basis_centres"},
+     ("log_widths_lr", "basis_log_widths"))])
 def test_every_scheduled_rate_ends_at_its_final_rate_and_a_frozen_group_stays_frozen(
-        small_phantom, tmp_path):
-    """endogaussian decays the means and its HexPlane field; a rate set to 0 is left at 0."""
-    config = small_config("endogaussian", 4)
-    config.components["deformation"].mlp_lr = 0.0
+        small_phantom, tmp_path, method, decaying, frozen):
+    """The means and the deformation field's parameters decay; a rate set to 0 stays 0."""
+    setting, group = frozen
+    config = small_config(method, 4)
+    setattr(config.components["deformation"], setting, 0.0)
     trainer = Trainer(config, load_scene(small_phantom), tmp_path / "run")
     trainer.fit()
     rates = {group["name"]: group["lr"] for group in trainer.optimizer.param_groups}
-    assert {"means", "hexplane_grid"} <= set(trainer.schedules)
+    assert decaying <= set(trainer.schedules)
     for name, schedule in trainer.schedules.items():
+        assert schedule.lr_final < schedule.lr
         assert rates[name] == pytest.approx(schedule.lr_final, rel=1e-9), name
-    assert rates["hexplane_mlp"] == 0.0 and "hexplane_mlp" not in trainer.schedules
+    assert rates[group] == 0.0 and group not in trainer.schedules
 
 
 def rendered_test_frame(trainer: Trainer) -> torch.Tensor:
