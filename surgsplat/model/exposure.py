@@ -30,6 +30,11 @@ class ExposureConfig(ComponentConfig, kind="exposure"):
     """Knots of the piecewise-linear log-gain over t in [0, 1] (0 = no exposure model)."""
     lr: float = field(default=5e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the log-gains."""
+    lr_decay: float = field(default=0.1, metadata={"range": "(0, 1]"})
+    """Final over initial learning rate of the log-gains (exponential decay over the run): at
+    a constant 5e-3 each step, fitted to one frame, still moved its knots by about 0.5 % of
+    brightness at the end of training. Full phantom, 3000 iterations, seed 1: psnr_tissue
+    42.83 -> 44.19 dB (deform3dgs), 39.91 -> 40.38 (endogaussian) (issue 28)."""
 
     def resolve(self, scene: SceneInfo) -> "ExposureConfig":
         """This config for the scene's clip: at most one knot per two frames."""
@@ -49,7 +54,8 @@ class ExposureCurve(Component):
         self.log_gains = nn.Parameter(torch.zeros(max(config.knots, 0), 3))  # [K, 3]
 
     def param_groups(self) -> list[ParamGroup]:
-        return [ParamGroup("exposure", [self.log_gains], self.config.lr)]
+        config = self.config
+        return [ParamGroup("exposure", [self.log_gains], config.lr, config.lr * config.lr_decay)]
 
     def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
         """Colours times the gain g of `when`, in SH space: every coefficient times g, and the

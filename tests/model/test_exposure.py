@@ -23,3 +23,8 @@ def test_gain_in_sh_space_equals_gain_on_the_colour():
     scaled = exposure.transform(state, None, when)
     expected = eval_sh(2, state.sh, dirs) * exposure.gain(when.time)
     torch.testing.assert_close(eval_sh(2, scaled.sh, dirs), expected, rtol=1e-5, atol=1e-6)
+
+
+def test_the_gains_rate_decays_to_lr_decay_of_its_start():
+    (group,) = ExposureConfig(knots=4, lr=0.01, lr_decay=0.2).build().param_groups()
+    assert group.lr == 0.01 and abs(group.lr_final - 0.002) < 1e-15
