@@ -48,7 +48,10 @@ class GaussianBasisConfig(ComponentConfig, kind="gaussian_basis"):
     num_basis: int = field(default=8, metadata={"range": "[2, inf)"})
     """Number B of Gaussian basis functions per Gaussian (at least 2). Eight fit the smooth
     tissue motion of a clip of a few seconds; more let each Gaussian's curve chase noise (on the
-    full phantom, 16 cost about 1 dB of test PSNR)."""
+    full phantom, 16 cost about 1 dB of test PSNR at constant rates; with the rates decayed
+    (`lr_decay`), the papers' 17 gave psnr_tissue 43.97 against 44.19 dB, for a depth RMSE of
+    0.018 against 0.022 mm and an opacity-weighted Gaussian P2S median of 0.32 against
+    0.43 mm: deform3dgs, 3000 iterations, seed 1)."""
     long_clip_frames_per_basis: int = field(default=250, metadata={"range": "[1, inf)"})
     """Clips longer than this x num_basis frames get one basis function per this many frames.
     Every basis function costs each Gaussian D + 2 parameters, hence the sparse growth."""
