@@ -160,7 +160,10 @@ def test_training_with_known_moving_poses(moving_phantom, tmp_path):
     assert frame_loss(trainer, 5) < 0.8 * before
     metrics = evaluate_run(load_trained_run(tmp_path / "run"), EvalOptions())
     assert metrics["psnr_tissue"] > 20.0
-    assert metrics["p2s_median_mm"] < 1.0  # points were back-projected with the frames' poses
+    # Points back-projected with the frames' poses: with the first frame's pose for every frame
+    # they would be off by the camera's motion (ATE 4.1 mm, rotations up to 5.5 degrees at
+    # ~50 mm, benchmarks/bench_poses.py); 60 iterations leave about 1 mm.
+    assert metrics["p2s_median_mm"] < 2.0
 
 
 def test_frames_without_depth_cost_no_depth_backward(small_phantom, tmp_path):
