@@ -59,7 +59,7 @@ def test_loss_falls(small_phantom, tmp_path, method):
 def test_every_scheduled_rate_ends_at_its_final_rate_and_a_frozen_group_stays_frozen(
         small_phantom, tmp_path, method, decaying, frozen):
     """The means and the deformation field's parameters decay; a rate set to 0 stays 0."""
-    setting, group = frozen
+    setting, frozen_group = frozen
     config = small_config(method, 4)
     setattr(config.components["deformation"], setting, 0.0)
     trainer = Trainer(config, load_scene(small_phantom), tmp_path / "run")
@@ -69,7 +69,7 @@ def test_every_scheduled_rate_ends_at_its_final_rate_and_a_frozen_group_stays_fr
     for name, schedule in trainer.schedules.items():
         assert schedule.lr_final < schedule.lr
         assert rates[name] == pytest.approx(schedule.lr_final, rel=1e-9), name
-    assert rates[group] == 0.0 and group not in trainer.schedules
+    assert rates[frozen_group] == 0.0 and frozen_group not in trainer.schedules
 
 
 def rendered_test_frame(trainer: Trainer) -> torch.Tensor:
