@@ -94,9 +94,12 @@ def scene_identity(scene: Scene) -> dict:
 
 
 def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str]) -> None:
-    """Every declared term has a weight, every weight names a declared term, and every term's
-    window is not empty."""
-    unknown = sorted(set(weights) - set(declared))
+    """Every declared term has a weight, every nonzero weight names a declared term (a zero
+    weight may name a term no component computes, so that `--set losses.NAME.weight=0` turns
+    off the loss of a component that another `--set` replaced), and every term's window is not
+    empty."""
+    unknown = sorted(name for name, weight in weights.items()
+                     if name not in declared and weight.weight > 0)
     if unknown:
         raise SurgsplatError(f"losses.{unknown[0]}: no component of this method computes a loss "
                              f"term {unknown[0]!r}; terms: {', '.join(sorted(declared))}")

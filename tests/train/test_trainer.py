@@ -12,6 +12,7 @@ import torch
 
 from surgsplat.data.scene import load_scene
 from surgsplat.errors import SurgsplatError
+from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.losses.photometric import photometric_loss
 from surgsplat.methods.registry import PRESETS, method_config
@@ -299,3 +300,17 @@ def test_a_loss_window_that_is_empty_is_refused(small_phantom, tmp_path):
     with pytest.raises(SurgsplatError, match=r"losses.depth: stop \(0.4\) must be greater than "
                                              r"start \(0.6\)"):
         Trainer(config, load_scene(small_phantom), tmp_path / "run")
+
+
+def test_a_zero_weight_may_name_the_loss_of_a_replaced_component(small_phantom, tmp_path):
+    """endogaussian with the Gaussian-basis field: the HexPlane's regularisers are turned off by
+    weight 0 and the run trains; a nonzero weight on them is still refused."""
+    config = small_config("endogaussian", 4)
+    config.components["deformation"] = GaussianBasisConfig()
+    with pytest.raises(SurgsplatError, match="losses.plane_tv: no component of this method"):
+        Trainer(config, load_scene(small_phantom), tmp_path / "refused")
+    config.losses["plane_tv"].weight = config.losses["time_smoothness"].weight = 0.0
+    terms = set()
+    Trainer(config, load_scene(small_phantom), tmp_path / "run").fit(
+        lambda stats: terms.update(stats.terms))
+    assert terms == {"photometric", "depth"}
