@@ -434,7 +434,7 @@ def _fit_jaws(observed: np.ndarray, templates: list[np.ndarray], pose: np.ndarra
     jaws = np.nonzero(active)[0]
     for _ in range(options.icp_iterations):
         turns = [_rotation(pose[0], _X) @ _rotation(pose[1 + k], _Z) for k in range(2)]
-        matches = [trees[k].query(observed @ turns[k], workers=-1) for k in jaws]
+        matches = [trees[k].query(observed @ turns[k], workers=1) for k in jaws]
         distance = np.stack([m[0] for m in matches], axis=1)  # [J, active]
         owner = distance.argmin(axis=1)
         nearest = distance.min(axis=1)
@@ -456,7 +456,7 @@ def _fit_jaws(observed: np.ndarray, templates: list[np.ndarray], pose: np.ndarra
         if np.abs(step).max() < 1e-7:
             break
     tree = cKDTree(observed)
-    coverage = np.array([(tree.query(template @ turn.T, workers=-1)[0]
+    coverage = np.array([(tree.query(template @ turn.T, workers=1)[0]
                           <= options.coverage_distance).mean()
                          for template, turn in zip(templates, turns)])
     seen = active & (counts >= options.min_points) & (coverage >= options.min_coverage)
@@ -472,7 +472,7 @@ def _label_parts(canonical: np.ndarray, frame: np.ndarray, pose: np.ndarray,
     observed = next(o.points for o in observations if o.index == reference)
     points = np.concatenate([canonical, observed])
     local = (points - frame[:3, 3]) @ frame[:3, :3]  # [P, 3] hinge coordinates
-    distance = np.stack([cKDTree(template @ _rotation(angle, _Z).T).query(local, workers=-1)[0]
+    distance = np.stack([cKDTree(template @ _rotation(angle, _Z).T).query(local, workers=1)[0]
                          for template, angle in zip(templates, pose[1:])], axis=1)
     labels = np.where(distance[:, 0] <= distance[:, 1], JAW_A, JAW_B)
     labels[local[:, 0] <= options.hinge_margin] = SHAFT

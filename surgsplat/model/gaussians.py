@@ -58,7 +58,7 @@ def knn_mean_distance(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
     from scipy.spatial import cKDTree
 
     array = points.detach().double().cpu().numpy()
-    distances, _ = cKDTree(array).query(array, k=k + 1, workers=-1)
+    distances, _ = cKDTree(array).query(array, k=k + 1, workers=torch.get_num_threads())
     return torch.from_numpy(distances[:, 1:].mean(axis=1)).to(points)
 
 

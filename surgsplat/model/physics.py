@@ -82,7 +82,8 @@ def neighbour_graph(points: Tensor, members: Tensor, k: int) -> NeighbourGraph:
     if k == 0:
         empty = torch.zeros(len(chosen), 0)
         return NeighbourGraph(index, empty.long(), empty)
-    distances, rows = cKDTree(chosen).query(chosen, k=k + 1, workers=-1)
+    distances, rows = cKDTree(chosen).query(chosen, k=k + 1,
+                                            workers=torch.get_num_threads())
     rest = torch.from_numpy(distances[:, 1:]).to(points.dtype)
     zeta = rest.mean().clamp_min(1e-12)
     return NeighbourGraph(index, index[torch.from_numpy(rows[:, 1:])],

@@ -402,7 +402,7 @@ def _icp(tree, model: np.ndarray, target: np.ndarray, rotation: np.ndarray,
 
     for _ in range(iterations):
         back = (target - translation) @ rotation  # target in the model frame
-        _, nearest = tree.query(back, workers=-1)
+        _, nearest = tree.query(back, workers=1)
         source = model[nearest]
         source_centre, target_centre = source.mean(0), target.mean(0)
         fitted, _ = Rotation.align_vectors(target - target_centre, source - source_centre)
