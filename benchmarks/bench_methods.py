@@ -299,7 +299,8 @@ SUITES = {
     "fidelity": Suite(
         cases=FIDELITY_CASES,
         metrics=("psnr_tissue", "psnr_tissue_gain", "psnr_occluded", "depth_rmse_occluded_mm",
-                 "psnr_specular", "depth_rmse_mm", "normal_error_deg_median",
+                 "psnr_specular", "psnr_outside_highlights",
+                 "depth_rmse_mm", "normal_error_deg_median",
                  "gaussians_p2s_median_mm", "gaussians_p2s_weighted_median_mm",
                  "mesh_p2s_median_mm", "reflectance_error", "collisions", "collision_fraction",
                  "collision_fraction_truth",

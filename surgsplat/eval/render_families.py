@@ -76,7 +76,9 @@ class DepthFamily(MetricFamily):
 
 
 class SpecularFamily(MetricFamily):
-    """psnr_specular over the highlights the phantom marks."""
+    """psnr_specular over the highlights the phantom marks, psnr_outside_highlights over the
+    rest of the tissue: together they tell a method that misses the moving highlights from one
+    that misses the tissue."""
 
     name = "specular"
 
@@ -85,7 +87,10 @@ class SpecularFamily(MetricFamily):
 
     def conventions(self) -> dict[str, str]:
         return {"psnr_specular": "render vs image over the tissue pixels gt/highlights marks, "
-                                 "frames with such pixels"}
+                                 "frames with such pixels",
+                "psnr_outside_highlights": "render vs image over the tissue pixels "
+                                           "gt/highlights does not mark, frames with such "
+                                           "pixels"}
 
 
 class OccludedFamily(MetricFamily):
@@ -153,10 +158,14 @@ def occluded_row(rgb: torch.Tensor, depth: torch.Tensor, frame: Frame,
 
 
 def specular_row(pred: torch.Tensor, frame: Frame, scene_root: Path) -> dict[str, float]:
-    """psnr_specular of one frame: the render [H, W, 3] over the tissue pixels the phantom marks
-    as highlight (gt/highlights); empty without the file or such pixels."""
+    """psnr_specular and psnr_outside_highlights of one frame: the render [H, W, 3] over the
+    tissue pixels the phantom marks as highlight (gt/highlights) and over the other tissue
+    pixels; each left out when it has no pixels, both without the file."""
     path = scene_root / HIGHLIGHTS_DIR / f"{frame_stem(frame.index)}.png"
     if not path.is_file():
         return {}
-    highlight = frame.tissue & torch.from_numpy(read_tool_mask(path))  # 255 = marked
-    return {"psnr_specular": psnr_tissue(pred, frame.image, highlight)} if highlight.any() else {}
+    marked = torch.from_numpy(read_tool_mask(path))  # 255 = marked
+    regions = {"psnr_specular": frame.tissue & marked,
+               "psnr_outside_highlights": frame.tissue & ~marked}
+    return {name: psnr_tissue(pred, frame.image, pixels) for name, pixels in regions.items()
+            if pixels.any()}
