@@ -15,7 +15,10 @@ towards 0, which cuts white jitter's tilt about fivefold. The lobe is shaded per
 carries the alpha_i of Eq. 7) and the blended sharpness 1 / gamma^2 (`specular_sharpness`
 channel, normalised by the pixel's alpha), and added to the rendered colour:
 C += beta_bar exp((n . v - 1) sharpness_bar). The depth normal is detached, so highlights never
-bend the geometry; pixels without a valid depth normal get no lobe. The lobe is white and not scaled by an exposure component.
+bend the geometry; pixels without a valid depth normal get no lobe. The lobe is white light
+seen through the camera: it is scaled by the frame's colour gain (`GaussianState.colour_gain`,
+the exposure curve's), as the diffuse colours are, so the lobe's albedo is the tissue's and not
+the frame's (the `specular_albedo` channel is rendered per colour channel, beta times gain).
 """
 
 from __future__ import annotations
@@ -74,27 +77,30 @@ class SpecularLobe(Component):
 
     def render_channels(self, state, gaussians, camera, when: FrameTime) -> dict[str, Tensor]:
         params = gaussians.params
-        return {"specular_albedo": torch.sigmoid(params[ALBEDO_KEY]),
+        albedo = torch.sigmoid(params[ALBEDO_KEY])[:, None]  # [N, 1]
+        if state.colour_gain is not None:
+            albedo = albedo * state.colour_gain  # [N, 3]
+        return {"specular_albedo": albedo,
                 "specular_sharpness": torch.exp(-2.0 * params[ROUGHNESS_KEY])}
 
     def finish_render(self, output, camera, when: FrameTime) -> None:
-        albedo = output.extras["specular_albedo"][..., 0]  # [H, W], carries alpha
+        albedo = output.extras["specular_albedo"]  # [H, W, 1 or 3], carries alpha
         sharpness = output.extras["specular_sharpness"][..., 0] / output.alpha.clamp_min(
             MIN_ALPHA_FOR_DEPTH)
         lobe = specular_lobe(output.depth.detach(), camera.K, albedo, sharpness)
-        output.extras["specular"] = lobe[..., None]
-        output.rgb = output.rgb + lobe[..., None]
+        output.extras["specular"] = lobe
+        output.rgb = output.rgb + lobe
 
 
 def specular_lobe(depth: Tensor, K: Tensor, albedo: Tensor, sharpness: Tensor) -> Tensor:
-    """[H, W] co-located lobe albedo exp((n . v - 1) sharpness) with n the normal of the depth
-    map [H, W] (scene units), smoothed (`smooth_depth`), and v the unit direction from the
+    """[H, W, C] co-located lobe albedo exp((n . v - 1) sharpness) with n the normal of the
+    depth map [H, W] (scene units), smoothed (`smooth_depth`), and v the unit direction from the
     surface to the camera (`view_cosine`); 0 where the depth normal is not valid.
-    Differentiable in albedo and sharpness [H, W], not depth."""
+    Differentiable in albedo [H, W, C] and sharpness [H, W], not depth."""
     with torch.no_grad():
         cosine, valid = view_cosine(smooth_depth(depth), K)
-    lobe = albedo * torch.exp((cosine - 1.0) * sharpness)
-    return torch.where(valid, lobe, torch.zeros_like(lobe))
+    lobe = albedo * torch.exp((cosine - 1.0) * sharpness)[..., None]
+    return torch.where(valid[..., None], lobe, torch.zeros_like(lobe))
 
 
 def view_cosine(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:

@@ -18,10 +18,11 @@ from surgsplat.fields.hexplane import HexPlaneConfig
 from surgsplat.losses.biomechanics import BiomechanicsConfig
 from surgsplat.model.component import FrameTime, RenderContext, SceneInfo, SetupContext
 from surgsplat.model.dynamic import SplatModel, render_frame
+from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.physics import arap_strain, collision_energy, neighbour_graph, tool_proxy
 from surgsplat.image.pinhole import depth_normals, pixel_rays
-from surgsplat.model.specular import smooth_depth, specular_lobe, view_cosine
+from surgsplat.model.specular import SpecularConfig, smooth_depth, specular_lobe, view_cosine
 from surgsplat.model.tool_field import SEMANTIC_KEY, ToolFieldConfig, _icp
 from surgsplat.render.render import render
 from surgsplat.render.rotation import quaternion_to_matrix
@@ -226,19 +227,45 @@ def test_energies_gradients_match_finite_differences():
 def test_specular_lobe_peaks_facing_the_camera_and_has_checked_gradients():
     K = torch.tensor([[40.0, 0.0, 16.0], [0.0, 40.0, 12.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
     depth = torch.full((24, 32), 50.0, dtype=torch.float64)  # a plane facing the camera
-    albedo = torch.full((24, 32), 0.3, dtype=torch.float64, requires_grad=True)
+    albedo = torch.full((24, 32, 1), 0.3, dtype=torch.float64, requires_grad=True)
     sharpness = torch.full((24, 32), 20.0, dtype=torch.float64, requires_grad=True)
-    lobe = specular_lobe(depth, K, albedo, sharpness)
+    lobe = specular_lobe(depth, K, albedo, sharpness)  # [24, 32, 1]
     cosine = 1.0 / math.sqrt(1.0 + 2 * (0.5 / 40.0) ** 2)  # pixel (16, 12): centre (16.5, 12.5)
-    assert lobe[12, 16].item() == pytest.approx(0.3 * math.exp((cosine - 1.0) * 20.0), rel=1e-6)
-    assert lobe[2, 2] < lobe[12, 16]  # oblique view at the corner: dimmer
-    assert lobe[0, 0].item() == 0.0  # border pixels have no depth normal
+    assert lobe[12, 16, 0].item() == pytest.approx(0.3 * math.exp((cosine - 1.0) * 20.0),
+                                                   rel=1e-6)
+    assert lobe[2, 2, 0] < lobe[12, 16, 0]  # oblique view at the corner: dimmer
+    assert lobe[0, 0, 0].item() == 0.0  # border pixels have no depth normal
     small_a = albedo[10:13, 14:17].detach().clone().requires_grad_()
     small_s = sharpness[10:13, 14:17].detach().clone().requires_grad_()
     assert torch.autograd.gradcheck(
-        lambda a, s: specular_lobe(depth[9:14, 13:18], K, torch.nn.functional.pad(a, (1, 1, 1, 1)),
+        lambda a, s: specular_lobe(depth[9:14, 13:18], K,
+                                   torch.nn.functional.pad(a, (0, 0, 1, 1, 1, 1)),
                                    torch.nn.functional.pad(s, (1, 1, 1, 1))), (small_a, small_s))
     assert math.isfinite(float(lobe.detach().sum()))
+
+
+def test_the_lobe_is_scaled_by_the_frames_exposure_gain_as_the_colours_are():
+    """The exposure records its gain in the state; the lobe's albedo channel is beta times it,
+    per colour channel (white light seen through the camera's gain)."""
+    exposure = ExposureConfig(knots=2).build()
+    with torch.no_grad():
+        exposure.log_gains.copy_(torch.log(torch.tensor([[2.0, 1.0, 0.5]] * 2)))
+    points = torch.zeros(4, 3) + torch.tensor([0.0, 0.0, 5.0])
+    lobe = SpecularConfig(init_albedo=0.2).build()
+    attributes = lobe.initial_attributes(SetupContext(scene=SceneInfo(2, 8, 8, (0,)),
+                                                      points=points, scene_extent=1.0, frames=[]))
+    gaussians = GaussianModel.from_points(points, torch.full((4, 3), 0.5),
+                                          GaussianConfig(sh_degree=0), attributes)
+    state = SplatModel(gaussians, {}).state_at(FrameTime(0, 0.0))
+    assert state.colour_gain is None
+    lit = exposure.transform(state, gaussians, FrameTime(0, 0.0))
+    assert torch.allclose(lit.colour_gain, torch.tensor([2.0, 1.0, 0.5]))
+    twice = exposure.transform(lit, gaussians, FrameTime(0, 0.0))
+    assert torch.allclose(twice.colour_gain, torch.tensor([4.0, 1.0, 0.25]))
+    channel = lobe.render_channels(lit, gaussians, None, FrameTime(0, 0.0))["specular_albedo"]
+    assert torch.allclose(channel, torch.tensor([[0.4, 0.2, 0.1]] * 4))
+    plain = lobe.render_channels(state, gaussians, None, FrameTime(0, 0.0))["specular_albedo"]
+    assert torch.allclose(plain, torch.full((4, 1), 0.2))
 
 
 def _contact_scene(scale: float) -> tuple[GaussianModel, Tensor]:
