@@ -34,6 +34,9 @@ from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 from surgsplat.render.planar import planar_normals_and_distances, unbiased_plane_depth
 
+NORMAL_CHANNEL = "normal"
+"""The render channel of the blended normals [H, W, 3] (camera space, not normalised)."""
+
 
 @dataclass
 class PlanarConfig(ComponentConfig, kind="planar"):
@@ -58,12 +61,12 @@ class PlanarGaussians(Component):
                         when: FrameTime) -> dict[str, Tensor]:
         normals, distances = planar_normals_and_distances(
             state.means, state.scales, state.quats, camera.world_to_camera)
-        return {"normal": normals, "plane_distance": distances}
+        return {NORMAL_CHANNEL: normals, "plane_distance": distances}
 
     def finish_render(self, output, camera, when: FrameTime) -> None:
         distance = output.extras.pop("plane_distance")[..., 0]
         output.extras["expected_depth"] = output.depth
-        output.depth = unbiased_plane_depth(output.extras["normal"], distance, camera.K)
+        output.depth = unbiased_plane_depth(output.extras[NORMAL_CHANNEL], distance, camera.K)
 
     def loss_names(self) -> tuple[str, ...]:
         return ("flatten", "normal")
@@ -87,6 +90,6 @@ class PlanarGaussians(Component):
                 measured = torch.where(frame.depth > 0, frame.depth, torch.ones_like(frame.depth))
                 relative = depth_gradient_magnitude(frame.depth) / measured
                 weight = (1.0 - relative.clamp(0.0, 1.0)) ** 2
-        total, count = normal_consistency(output.depth, output.extras["normal"],
+        total, count = normal_consistency(output.depth, output.extras[NORMAL_CHANNEL],
                                           context.camera.K, counted, weight)
         return total / count.clamp_min(1)

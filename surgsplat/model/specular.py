@@ -6,10 +6,11 @@ the degree-0 SH term (the preset sets sh_degree 0). With the light at the camera
 is the view direction v, and a Gaussian adds the white lobe beta exp((n . v - 1) / gamma^2).
 
 The normal n comes from the rendered depth (as `image.pinhole.depth_normals`), so it exists per
-pixel, after rasterisation. One-pixel central differences of a raw rendered depth turn 0.05 mm of
-depth jitter into normals tilted by ~13 degrees on the phantom, which scatters a lobe as sharp as
-this one; the depth is therefore first smoothed by the 11x11 Gaussian window (sigma 1.5 px,
-`image.blur`), normalised by the blurred validity so that edges of valid depth are not pulled
+pixel, after rasterisation; in a model of planar Gaussians (`model.planar`, the SURFACE phase,
+before this one) it is their blended normal map instead, which the depth-normal loss trains.
+One-pixel central differences of a raw rendered depth turn 0.05 mm of depth jitter into normals
+tilted by ~13 degrees on the phantom, which scatters a lobe as sharp as this one; the depth is
+therefore first smoothed by the 11x11 Gaussian window (sigma 1.5 px, `image.blur`), normalised by the blurred validity so that edges of valid depth are not pulled
 towards 0, which cuts white jitter's tilt about fivefold. The lobe is shaded per pixel
 (deferred) from the alpha-blended beta (`specular_albedo` channel: sum_i w_i beta_i, which
 carries the alpha_i of Eq. 7) and the blended sharpness 1 / gamma^2 (`specular_sharpness`
@@ -30,8 +31,10 @@ import torch
 from torch import Tensor
 
 from surgsplat.image.blur import gaussian_blur
+from surgsplat.image.pinhole import pixel_rays
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, SetupContext
 from surgsplat.model.phases import Phase
+from surgsplat.model.planar import NORMAL_CHANNEL
 from surgsplat.render.render import MIN_ALPHA_FOR_DEPTH
 
 ALBEDO_KEY = "specular_albedo_logit"
@@ -87,20 +90,41 @@ class SpecularLobe(Component):
         albedo = output.extras["specular_albedo"]  # [H, W, 1 or 3], carries alpha
         sharpness = output.extras["specular_sharpness"][..., 0] / output.alpha.clamp_min(
             MIN_ALPHA_FOR_DEPTH)
-        lobe = specular_lobe(output.depth.detach(), camera.K, albedo, sharpness)
+        with torch.no_grad():
+            if NORMAL_CHANNEL in output.extras:
+                cosine, valid = normal_view_cosine(output.extras[NORMAL_CHANNEL], camera.K)
+            else:
+                cosine, valid = view_cosine(smooth_depth(output.depth), camera.K)
+        lobe = shade_lobe(cosine, valid, albedo, sharpness)
         output.extras["specular"] = lobe
         output.rgb = output.rgb + lobe
 
 
 def specular_lobe(depth: Tensor, K: Tensor, albedo: Tensor, sharpness: Tensor) -> Tensor:
-    """[H, W, C] co-located lobe albedo exp((n . v - 1) sharpness) with n the normal of the
-    depth map [H, W] (scene units), smoothed (`smooth_depth`), and v the unit direction from the
-    surface to the camera (`view_cosine`); 0 where the depth normal is not valid.
-    Differentiable in albedo [H, W, C] and sharpness [H, W], not depth."""
+    """[H, W, C] co-located lobe of the depth map [H, W] (scene units): `shade_lobe` with the
+    normals of the smoothed depth (`smooth_depth`, `view_cosine`). Differentiable in albedo
+    [H, W, C] and sharpness [H, W], not depth."""
     with torch.no_grad():
         cosine, valid = view_cosine(smooth_depth(depth), K)
+    return shade_lobe(cosine, valid, albedo, sharpness)
+
+
+def shade_lobe(cosine: Tensor, valid: Tensor, albedo: Tensor, sharpness: Tensor) -> Tensor:
+    """[H, W, C] lobe albedo exp((n . v - 1) sharpness) from the cosine n . v [H, W] of the
+    surface normal and the direction to the camera; 0 where `valid` [H, W] is False."""
     lobe = albedo * torch.exp((cosine - 1.0) * sharpness)[..., None]
     return torch.where(valid[..., None], lobe, torch.zeros_like(lobe))
+
+
+def normal_view_cosine(normal: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
+    """|n . v| [H, W] for the alpha-blended normal map [H, W, 3] of planar Gaussians (camera
+    space, either orientation; normalised here) and v the unit ray of each pixel centre; valid
+    [H, W] where the blended normal is not degenerate."""
+    height, width = normal.shape[:2]
+    rays = pixel_rays(K, width, height, normal.dtype)
+    length = normal.norm(dim=-1)
+    cosine = (normal * rays).sum(-1).abs() / (length * rays.norm(dim=-1)).clamp_min(1e-12)
+    return cosine.clamp(0.0, 1.0), length > 1e-6
 
 
 def view_cosine(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:

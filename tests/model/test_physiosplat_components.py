@@ -22,9 +22,10 @@ from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.physics import arap_strain, collision_energy, neighbour_graph, tool_proxy
 from surgsplat.image.pinhole import depth_normals, pixel_rays
-from surgsplat.model.specular import SpecularConfig, smooth_depth, specular_lobe, view_cosine
+from surgsplat.model.specular import (SpecularConfig, normal_view_cosine, smooth_depth,
+                                      specular_lobe, view_cosine)
 from surgsplat.model.tool_field import SEMANTIC_KEY, ToolFieldConfig, _icp
-from surgsplat.render.render import render
+from surgsplat.render.render import RenderOutput, render
 from surgsplat.render.rotation import quaternion_to_matrix
 
 ROTVEC = torch.tensor([0.3, -0.2, 0.5])
@@ -242,6 +243,29 @@ def test_specular_lobe_peaks_facing_the_camera_and_has_checked_gradients():
                                    torch.nn.functional.pad(a, (0, 0, 1, 1, 1, 1)),
                                    torch.nn.functional.pad(s, (1, 1, 1, 1))), (small_a, small_s))
     assert math.isfinite(float(lobe.detach().sum()))
+
+
+def test_a_planar_models_lobe_is_shaded_from_its_rendered_normals():
+    """With a normal channel (planar Gaussians) the lobe uses it, not the depth: here the depth
+    is empty, the normals face the camera, so the lobe is there, with n . v = 1 / |ray|."""
+    K = torch.tensor([[40.0, 0.0, 16.0], [0.0, 40.0, 12.0], [0.0, 0.0, 1.0]])
+    normal = torch.zeros(24, 32, 3)
+    normal[..., 2] = 0.5  # blended, not normalised, facing away from the camera
+    cosine, valid = normal_view_cosine(normal, K)
+    ray = pixel_rays(K, 32, 24)[5, 7]
+    assert valid.all()
+    assert cosine[5, 7].item() == pytest.approx(1.0 / float(ray.norm()), rel=1e-6)
+    assert torch.equal(normal_view_cosine(-normal, K)[0], cosine)  # either orientation
+    assert not normal_view_cosine(torch.zeros(2, 2, 3), K)[1].any()
+    lobe = SpecularConfig().build()
+    output = RenderOutput(rgb=torch.zeros(24, 32, 3), alpha=torch.ones(24, 32),
+                          depth=torch.zeros(24, 32), projection=None,
+                          extras={"normal": normal, "specular_albedo": torch.full((24, 32, 1), 0.3),
+                                  "specular_sharpness": torch.full((24, 32, 1), 20.0)})
+    lobe.finish_render(output, Camera(K=K, world_to_camera=torch.eye(4), width=32, height=24),
+                       FrameTime(0, 0.0))
+    expected = 0.3 * torch.exp((cosine - 1.0) * 20.0)
+    assert torch.allclose(output.rgb, expected[..., None].expand(24, 32, 3))
 
 
 def test_the_lobe_is_scaled_by_the_frames_exposure_gain_as_the_colours_are():
