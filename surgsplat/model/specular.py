@@ -12,14 +12,15 @@ One-pixel central differences of a raw rendered depth turn 0.05 mm of depth jitt
 tilted by ~13 degrees on the phantom, which scatters a lobe as sharp as this one; the depth is
 therefore first smoothed by the 11x11 Gaussian window (sigma 1.5 px, `image.blur`), normalised
 by the blurred validity so that edges of valid depth are not pulled towards 0, which cuts white
-jitter's tilt about fivefold. The lobe is shaded per pixel (deferred) from the alpha-blended beta (`specular_albedo` channel: sum_i w_i beta_i, which
-carries the alpha_i of Eq. 7) and the blended sharpness 1 / gamma^2 (`specular_sharpness`
-channel, normalised by the pixel's alpha), and added to the rendered colour:
-C += beta_bar exp((n . v - 1) sharpness_bar). The depth normal is detached, so highlights never
-bend the geometry; pixels without a valid depth normal get no lobe. The lobe is white light
-seen through the camera: it is scaled by the frame's colour gain (`GaussianState.colour_gain`,
-the exposure curve's), as the diffuse colours are, so the lobe's albedo is the tissue's and not
-the frame's (the `specular_albedo` channel is rendered per colour channel, beta times gain).
+jitter's tilt about fivefold. The lobe is shaded per pixel (deferred) from the alpha-blended
+beta (`specular_albedo` channel: sum_i w_i beta_i, which carries the alpha_i of Eq. 7) and the
+blended sharpness 1 / gamma^2 (`specular_sharpness` channel, normalised by the pixel's alpha),
+and added to the rendered colour: C += beta_bar exp((n . v - 1) sharpness_bar). The depth normal
+is detached, so highlights never bend the geometry; pixels without a valid depth normal get no
+lobe. The lobe is white light seen through the camera: it is scaled by the frame's colour gain
+(`GaussianState.colour_gain`, the exposure curve's), as the diffuse colours are, so the lobe's
+albedo is the tissue's and not the frame's (the `specular_albedo` channel is rendered per colour
+channel, beta times gain).
 """
 
 from __future__ import annotations
