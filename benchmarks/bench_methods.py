@@ -447,7 +447,7 @@ def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
     """Train and evaluate `case` (with `seed` for training and initialisation when given) in
     processes of their own, with `threads` threads; its metrics.json as a row."""
     scene = phantom_dir(work, case.phantom, shared_data)
-    run_dir = work / (f"run-{case.name}" if seed is None else f"run-{case.name}-seed{seed}")
+    run_dir = run_folder(work, case.name, seed)
     subprocess.run(["rm", "-rf", str(run_dir)], check=True)
     settings = case.settings + (() if seed is None else (f"train.seed={seed}", f"init.seed={seed}"))
     options = [arg for setting in settings for arg in ("--set", setting)]
@@ -473,6 +473,26 @@ def run_case(case: Case, work: Path, iterations: int | None, seed: int | None,
     row.update({key: value for key, value in metrics.items()
                 if isinstance(value, (int, float)) and key not in row})
     return row
+
+
+def run_folder(work: Path, case: str, seed: int | None) -> Path:
+    """The run folder of `case` trained with `seed` under `work`."""
+    return work / (f"run-{case}" if seed is None else f"run-{case}-seed{seed}")
+
+
+def rescore(row: dict, work: Path, threads: int) -> dict:
+    """`row` with the metrics of its run folder under `work` evaluated again by the current code
+    (`surgsplat eval`: a metric added since it trained); its training columns and commit stay,
+    `rescored_commit` names the code that scored it."""
+    run_dir = run_folder(work, row["case"], row["seed"])
+    real = REAL_SCENES.get(row["phantom"])
+    surgsplat("--threads", str(threads), "eval", str(run_dir),
+              *(real.eval_options if real else ()))
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    training = {"iterations", "wall_seconds", "train_cpu_seconds", "threads", "commit", "date"}
+    return {**row, **{key: value for key, value in metrics.items()
+                      if isinstance(value, (int, float)) and key not in training},
+            "rescored_commit": source_commit()}
 
 
 def mean_over_seeds(rows: list[dict]) -> list[dict]:
@@ -580,7 +600,13 @@ def main() -> None:
     parser.add_argument("--collect", type=Path, default=None, metavar="LOG",
                         help="run nothing: write the report from the rows an interrupted "
                              "`--json` run printed to LOG (its cases that finished)")
+    parser.add_argument("--rescore", action="store_true",
+                        help="with --collect: evaluate the collected rows' run folders under "
+                             "--work again with the current code (a metric added since they "
+                             "trained); their training columns stay")
     args = parser.parse_args()
+    if args.rescore and not args.collect:
+        parser.error("--rescore needs --collect")
     if args.jobs < 1:
         parser.error("--jobs must be at least 1")
     if args.threads is not None and args.threads < 1:
@@ -595,6 +621,8 @@ def main() -> None:
     if args.collect:
         runs = [json.loads(line) for line in args.collect.read_text().splitlines()
                 if line.startswith('{"case"')]
+        if args.rescore:
+            runs = [rescore(run, args.work, args.threads or 1) for run in runs]
     else:
         args.work.mkdir(parents=True, exist_ok=True)
         chosen = [case for case in suite.cases if args.cases is None or case.name in args.cases]

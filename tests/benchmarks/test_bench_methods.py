@@ -1,9 +1,11 @@
 """The method benchmark's bookkeeping: means over seeds and the targets it checks."""
 
+import json
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+import bench_methods  # noqa: E402
 from bench_methods import (FIDELITY_CASES, FIDELITY_TARGETS, PHANTOMS,  # noqa: E402
                            REAL_SCENES, SUITES, Target, mean_over_seeds)
 
@@ -67,3 +69,26 @@ def test_every_suite_names_its_own_cases_and_known_scenes():
         assert all({target.case, *target.references} <= cases for target in suite.targets), name
         assert all(case.phantom in PHANTOMS or case.phantom in REAL_SCENES
                    for case in suite.cases), name
+
+
+def test_a_rescored_row_takes_the_new_metrics_and_keeps_its_training_columns(tmp_path,
+                                                                           monkeypatch):
+    run_dir = tmp_path / "run-endogsg-seed1"
+    run_dir.mkdir()
+    evaluated = []
+
+    def evaluate(*args):
+        evaluated.append(args)
+        (run_dir / "metrics.json").write_text(json.dumps(
+            {"psnr_tissue": 40.0, "psnr_outside_highlights": 45.0, "iteration": 3000,
+             "lpips_note": "no weights"}))
+        return 1.0
+
+    monkeypatch.setattr(bench_methods, "surgsplat", evaluate)
+    row = {"case": "endogsg", "seed": 1, "phantom": "pulling", "iterations": 3000,
+           "train_cpu_seconds": 495.3, "commit": "abc", "psnr_tissue": 39.0}
+    rescored = bench_methods.rescore(row, tmp_path, threads=1)
+    assert evaluated == [("--threads", "1", "eval", str(run_dir))]
+    assert rescored["psnr_tissue"] == 40.0 and rescored["psnr_outside_highlights"] == 45.0
+    assert rescored["train_cpu_seconds"] == 495.3 and rescored["commit"] == "abc"
+    assert "lpips_note" not in rescored and "rescored_commit" in rescored
