@@ -50,7 +50,9 @@ class SpecularConfig(ComponentConfig, kind="specular"):
     """Initial beta of every Gaussian, in (0, 1). The paper's 0.1 adds 0.1 of white to every
     surface facing the camera at the start, on top of degree-0 colours initialised from images
     that already contain the highlights (counted twice); 0.01 starts the lobe near zero and lets
-    the highlights move into it."""
+    the highlights move into it. Full phantom, 3000 iterations, seed 1 (physiosplat, before the
+    lobe took the exposure gain): psnr_tissue 36.77 dB at 0.1 against 40.70 at 0.01 (issue
+    28)."""
     init_roughness: float = field(default=0.2, metadata={"range": "(0, inf)"})
     """Initial gamma: 0.2 gives sharpness 25, a lobe at 1/e where n . v = 0.96."""
     albedo_lr: float = field(default=0.01, metadata={"range": "[0, inf)"})
