@@ -60,14 +60,12 @@ class ExposureCurve(Component):
     def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
         """Colours times the gain g of `when`, in SH space: every coefficient times g, and the
         degree-0 term shifted by (g - 1) 0.5 / Y_0 so that the +0.5 offset of the SH colour
-        scales too (the colour's clamp at 0 commutes with a positive gain). The gain is also
-        recorded in the state's colour_gain, for light added after rasterisation."""
+        scales too (the colour's clamp at 0 commutes with a positive gain)."""
         gain = self.gain(when.time)  # [3]
         sh = state.sh * gain
         offset = torch.zeros_like(sh[:1])
         offset[0, 0] = (gain - 1.0) * (0.5 / SH_C0)
-        total = gain if state.colour_gain is None else state.colour_gain * gain
-        return state.replace(sh=sh + offset, colour_gain=total)
+        return state.replace(sh=sh + offset)
 
     def gain(self, t: float) -> Tensor:
         """[3] multiplicative gain at time t (ones without knots)."""

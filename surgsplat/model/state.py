@@ -18,10 +18,7 @@ class GaussianState:
     opacities: Tensor  # [N] in (0, 1)
     sh: Tensor  # [N, K, 3] spherical-harmonic colour coefficients
     sh_degree: int
-    colour_gain: Tensor | None = None
-    """[3] per-channel gain that components applied to the colours for this frame (the
-    exposure); None = 1. Light a component adds after rasterisation is scaled by it too."""
 
-    def replace(self, **changes: Tensor | None) -> "GaussianState":
+    def replace(self, **changes: Tensor) -> "GaussianState":
         """A copy with some fields replaced."""
         return dataclasses.replace(self, **changes)

@@ -18,7 +18,6 @@ from surgsplat.fields.hexplane import HexPlaneConfig
 from surgsplat.losses.biomechanics import BiomechanicsConfig
 from surgsplat.model.component import FrameTime, RenderContext, SceneInfo, SetupContext
 from surgsplat.model.dynamic import SplatModel, render_frame
-from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.physics import arap_strain, collision_energy, neighbour_graph, tool_proxy
 from surgsplat.image.pinhole import depth_normals, pixel_rays
@@ -266,30 +265,6 @@ def test_a_planar_models_lobe_is_shaded_from_its_rendered_normals():
                        FrameTime(0, 0.0))
     expected = 0.3 * torch.exp((cosine - 1.0) * 20.0)
     assert torch.allclose(output.rgb, expected[..., None].expand(24, 32, 3))
-
-
-def test_the_lobe_is_scaled_by_the_frames_exposure_gain_as_the_colours_are():
-    """The exposure records its gain in the state; the lobe's albedo channel is beta times it,
-    per colour channel (white light seen through the camera's gain)."""
-    exposure = ExposureConfig(knots=2).build()
-    with torch.no_grad():
-        exposure.log_gains.copy_(torch.log(torch.tensor([[2.0, 1.0, 0.5]] * 2)))
-    points = torch.zeros(4, 3) + torch.tensor([0.0, 0.0, 5.0])
-    lobe = SpecularConfig(init_albedo=0.2).build()
-    attributes = lobe.initial_attributes(SetupContext(scene=SceneInfo(2, 8, 8, (0,)),
-                                                      points=points, scene_extent=1.0, frames=[]))
-    gaussians = GaussianModel.from_points(points, torch.full((4, 3), 0.5),
-                                          GaussianConfig(sh_degree=0), attributes)
-    state = SplatModel(gaussians, {}).state_at(FrameTime(0, 0.0))
-    assert state.colour_gain is None
-    lit = exposure.transform(state, gaussians, FrameTime(0, 0.0))
-    assert torch.allclose(lit.colour_gain, torch.tensor([2.0, 1.0, 0.5]))
-    twice = exposure.transform(lit, gaussians, FrameTime(0, 0.0))
-    assert torch.allclose(twice.colour_gain, torch.tensor([4.0, 1.0, 0.25]))
-    channel = lobe.render_channels(lit, gaussians, None, FrameTime(0, 0.0))["specular_albedo"]
-    assert torch.allclose(channel, torch.tensor([[0.4, 0.2, 0.1]] * 4))
-    plain = lobe.render_channels(state, gaussians, None, FrameTime(0, 0.0))["specular_albedo"]
-    assert torch.allclose(plain, torch.full((4, 1), 0.2))
 
 
 def _contact_scene(scale: float) -> tuple[GaussianModel, Tensor]:
