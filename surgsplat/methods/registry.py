@@ -240,7 +240,7 @@ def physiosplat() -> MethodConfig:
     frame 33 with correlation 0.93. But a lobe that sharp, fixed at those values from the
     start, drew the rendered depth's vessel-scale relief as highlights: psnr_tissue 32.89 dB
     against 40.70. All of this preset's gap to deform3dgs lies on the highlight pixels
-    (psnr_outside_highlights 45.2 against 45.4 dB, mean of 2 seeds; see README, where the
+    (psnr_outside_highlights 45.38 against 45.45 dB, mean of 2 seeds; see README, where the
     HexPlane presets lose). no loss of a step reaches a tissue Gaussian
     through the frame's tool pixels (a per-pixel gate, see ToolField.losses); the collision's
     tool proxy is balls around the tool Gaussians, not their convex hull (see model.physics).
