@@ -241,7 +241,7 @@ def physiosplat() -> MethodConfig:
     start, drew the rendered depth's vessel-scale relief as highlights: psnr_tissue 32.89 dB
     against 40.70. All of this preset's gap to deform3dgs lies on the highlight pixels
     (psnr_outside_highlights 45.38 against 45.45 dB, mean of 2 seeds; see README, where the
-    HexPlane presets lose). no loss of a step reaches a tissue Gaussian
+    HexPlane presets lose). No loss of a step reaches a tissue Gaussian
     through the frame's tool pixels (a per-pixel gate, see ToolField.losses); the collision's
     tool proxy is balls around the tool Gaussians, not their convex hull (see model.physics).
     Full phantom, 3000 iterations: psnr_tissue 39.13 dB (seed 0) with no gate, 40.23 with a
