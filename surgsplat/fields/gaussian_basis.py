@@ -103,13 +103,10 @@ class GaussianBasisField(DeformationField):
         self.num_channels = num_channels(config.deform_color)
 
     def per_gaussian_attributes(self, num: int) -> dict[str, Tensor]:
-        basis = self.config.num_basis
-        spacing = 1.0 / (basis - 1)
-        return {
-            WEIGHTS: torch.zeros(num, self.num_channels, basis),
-            CENTRES: torch.linspace(0.0, 1.0, basis).repeat(num, 1),
-            LOG_WIDTHS: torch.full((num, basis), math.log(self.config.init_width * spacing)),
-        }
+        weights, centres, log_widths = identity_curves(num, self.num_channels,
+                                                       self.config.num_basis,
+                                                       self.config.init_width)
+        return {WEIGHTS: weights, CENTRES: centres, LOG_WIDTHS: log_widths}
 
     def forward(self, means: Tensor, attributes: dict[str, Tensor], t: float) -> Deformation:
         weights = attributes[WEIGHTS]  # [N, D, B]
@@ -127,6 +124,17 @@ class GaussianBasisField(DeformationField):
     def attribute_lr_finals(self) -> dict[str, float]:
         decay = self.config.lr_decay
         return {name: rate * decay for name, rate in self.attribute_lrs().items()}
+
+
+def identity_curves(num: int, channels: int, num_basis: int,
+                    init_width: float) -> tuple[Tensor, Tensor, Tensor]:
+    """Initial curves of `num` Gaussians, all zero: weights [num, channels, num_basis], centres
+    [num, num_basis] evenly spread over [0, 1] and log-widths [num, num_basis] of `init_width`
+    times the centres' spacing, so that neighbouring basis functions overlap."""
+    spacing = 1.0 / (num_basis - 1)
+    return (torch.zeros(num, channels, num_basis),
+            torch.linspace(0.0, 1.0, num_basis).repeat(num, 1),
+            torch.full((num, num_basis), math.log(init_width * spacing)))
 
 
 def deformation_channels(weights: Tensor, centres: Tensor, log_widths: Tensor, t: float,

@@ -21,6 +21,7 @@ from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.ranges import check_config
 from surgsplat.methods.settings import LossWeight
 from surgsplat.model.camera_refine import CameraRefineConfig  # noqa: F401  (kind "camera_refine")
+from surgsplat.model.color_curves import ColorCurvesConfig
 from surgsplat.model.exposure import ExposureConfig
 from surgsplat.model.gaussians import GaussianConfig
 from surgsplat.model.init_points import InitConfig

@@ -5,6 +5,8 @@ The Gaussians of a frame are the canonical Gaussians through every component's `
 phase order; the render's derived maps (`finish_render`) follow the same order. The order is that
 of every preset since the methods were measured (issue 28):
 - the anchors place the canonical Gaussians, which the deformation then moves;
+- the colour curves change each Gaussian's colour after the deformation and before the tool
+  field gates it;
 - the tool field moves its Gaussians rigidly over whatever the deformation made of them, and
   gates the gradients of every colour and opacity before the exposure and the SDF scale them;
 - LumiState modulates the exposed colour (its offset delta is not scaled by the exposure).
@@ -30,6 +32,8 @@ class Phase(StrEnum):
     """Places the canonical Gaussians (DRAWER's anchors on mesh faces)."""
     DEFORMATION = "deformation"
     """Moves the Gaussians to the frame's time (Gaussian-basis, HexPlane)."""
+    APPEARANCE = "appearance"
+    """Changes each Gaussian's own colour over time (the colour curves)."""
     TOOL = "tool"
     """Moves the tool's Gaussians rigidly, over the deformation (the tool field)."""
     EXPOSURE = "exposure"

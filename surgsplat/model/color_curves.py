@@ -1,0 +1,98 @@
+"""Per-Gaussian colour curves: each Gaussian's diffuse colour changes over time.
+
+Every Gaussian carries an offset of its SH DC colour over time, a sum of B Gaussian basis
+functions of time with their own amplitudes, centres and widths: the Gaussian-basis field's
+curves (`fields.gaussian_basis`, EndoPlanar eq. 2), applied to the colour only.
+
+Why: a highlight that slides over the tissue, as the surface tilts under a tool with the light at
+the camera, brightens each tissue point for a while and then leaves it. A Gaussian-basis field
+follows it by moving bright Gaussians with it; a field shared by all Gaussians (HexPlane)
+cannot, since its grid is far coarser than a highlight, and its colour output
+(`HexPlaneConfig.deform_color`) did not help (issue 28). A curve per Gaussian can brighten and
+dim each Gaussian where the highlight passes, and leaves the geometry to the field.
+
+Per-Gaussian attributes (in `GaussianModel.params`, so densification carries them along):
+color_basis_weights [N, 3, B] (SH DC units), color_basis_centres [N, B] (time) and
+color_basis_log_widths [N, B]. All weights start at 0, so the curves start as the identity.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import torch
+
+from surgsplat.errors import SurgsplatError
+from surgsplat.fields.deformation import COLOR_CHANNELS, time_capacity
+from surgsplat.fields.gaussian_basis import deformation_channels, identity_curves
+from surgsplat.model.component import Component, ComponentConfig, FrameTime, SceneInfo
+from surgsplat.model.phases import Phase
+from surgsplat.model.state import GaussianState
+
+WEIGHTS = "color_basis_weights"
+CENTRES = "color_basis_centres"
+LOG_WIDTHS = "color_basis_log_widths"
+
+
+@dataclass
+class ColorCurvesConfig(ComponentConfig, kind="color_curves"):
+    """Basis size and learning rates of the colour curves."""
+
+    num_basis: int = field(default=8, metadata={"range": "[2, inf)"})
+    """Basis functions B per Gaussian (at least 2; at most one per two frames of the clip)."""
+    long_clip_frames_per_basis: int = field(default=250, metadata={"range": "[1, inf)"})
+    """Clips longer than this x num_basis frames get one basis function per this many frames."""
+    max_basis: int = field(default=16, metadata={"range": "[2, inf)"})
+    """Upper limit of the basis functions of a long clip."""
+    init_width: float = field(default=1.0, metadata={"range": "(0, inf)"})
+    """Initial width of every basis function, in units of the spacing of the centres."""
+    weights_lr: float = field(default=2.5e-3, metadata={"range": "[0, inf)"})
+    """Adam learning rate of the amplitudes (SH DC units, as 3DGS's colour rate)."""
+    centres_lr: float = field(default=1.6e-3, metadata={"range": "[0, inf)"})
+    """Adam learning rate of the centres (time units; the clip spans [0, 1])."""
+    log_widths_lr: float = field(default=1e-2, metadata={"range": "[0, inf)"})
+    """Adam learning rate of the log-widths."""
+    lr_decay: float = field(default=0.1, metadata={"range": "(0, 1]"})
+    """Final over initial learning rate of the three (exponential decay over the run)."""
+
+    def resolve(self, scene: SceneInfo) -> "ColorCurvesConfig":
+        """This config for the scene's clip (`time_capacity`, as the Gaussian-basis field)."""
+        return dataclasses.replace(self, num_basis=time_capacity(
+            scene.num_frames, self.num_basis, self.long_clip_frames_per_basis, self.max_basis))
+
+    def build(self) -> "ColorCurves":
+        return ColorCurves(self)
+
+
+class ColorCurves(Component):
+    """See the module docstring."""
+    phase = Phase.APPEARANCE
+
+    def __init__(self, config: ColorCurvesConfig):
+        super().__init__()
+        if config.num_basis < 2:
+            raise SurgsplatError(f"color_curves num_basis must be >= 2, got {config.num_basis}")
+        self.config = config
+
+    def initial_attributes(self, context) -> dict[str, torch.Tensor]:
+        weights, centres, log_widths = identity_curves(
+            context.points.shape[0], COLOR_CHANNELS, self.config.num_basis,
+            self.config.init_width)
+        return {WEIGHTS: weights, CENTRES: centres, LOG_WIDTHS: log_widths}
+
+    def attribute_lrs(self) -> dict[str, float]:
+        config = self.config
+        return {WEIGHTS: config.weights_lr, CENTRES: config.centres_lr,
+                LOG_WIDTHS: config.log_widths_lr}
+
+    def attribute_lr_finals(self) -> dict[str, float]:
+        return {name: rate * self.config.lr_decay for name, rate in self.attribute_lrs().items()}
+
+    def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
+        """The SH DC colour plus each Gaussian's curve at `when`."""
+        params = gaussians.params
+        offsets = deformation_channels(params[WEIGHTS], params[CENTRES], params[LOG_WIDTHS],
+                                       when.time)  # [N, 3]
+        sh = torch.cat([state.sh[:, :1] + offsets[:, None], state.sh[:, 1:]], dim=1)
+        return state.replace(sh=sh)
