@@ -127,12 +127,11 @@ class DeformationField(Component, ABC):
         component before this one put them, e.g. anchored on a mesh) with the field's
         attributes, added to `state`."""
         delta = self(state.means, dict(gaussians.params), when.time)
-        sh = state.sh
         if delta.d_colors is not None:
-            sh = torch.cat([sh[:, :1] + delta.d_colors[:, None], sh[:, 1:]], dim=1)
+            state = state.with_dc_offset(delta.d_colors)
         return state.replace(means=state.means + delta.d_means,
                              scales=state.scales * torch.exp(delta.d_log_scales),
-                             quats=state.quats + delta.d_quats, sh=sh)
+                             quats=state.quats + delta.d_quats)
 
     def loss_names(self) -> tuple[str, ...]:
         return self.regularisation_names() + (("volume",) if self.volume_samples() > 0 else ())

@@ -12,7 +12,7 @@ cannot, since its grid is far coarser than a highlight, and its colour output
 dim each Gaussian where the highlight passes, and leaves the geometry to the field.
 
 Per-Gaussian attributes (in `GaussianModel.params`, so densification carries them along):
-color_basis_weights [N, 3, B] (SH DC units), color_basis_centres [N, B] (time) and
+color_basis_weights [N, 3, B] (SH DC units; [N, 1, B] when achromatic), color_basis_centres [N, B] (time) and
 color_basis_log_widths [N, B]. All weights start at 0, so the curves start as the identity.
 """
 
@@ -55,6 +55,9 @@ class ColorCurvesConfig(ComponentConfig, kind="color_curves"):
     """Adam learning rate of the log-widths."""
     lr_decay: float = field(default=0.1, metadata={"range": "(0, 1]"})
     """Final over initial learning rate of the three (exponential decay over the run)."""
+    achromatic: bool = False
+    """One curve per Gaussian added to all three channels (light of the light's colour, as a
+    specular highlight of the dichromatic reflection model), instead of one per channel."""
 
     def resolve(self, scene: SceneInfo) -> "ColorCurvesConfig":
         """This config for the scene's clip (`time_capacity`, as the Gaussian-basis field)."""
@@ -76,9 +79,9 @@ class ColorCurves(Component):
         self.config = config
 
     def initial_attributes(self, context) -> dict[str, torch.Tensor]:
+        channels = 1 if self.config.achromatic else COLOR_CHANNELS
         weights, centres, log_widths = identity_curves(
-            context.points.shape[0], COLOR_CHANNELS, self.config.num_basis,
-            self.config.init_width)
+            context.points.shape[0], channels, self.config.num_basis, self.config.init_width)
         return {WEIGHTS: weights, CENTRES: centres, LOG_WIDTHS: log_widths}
 
     def attribute_lrs(self) -> dict[str, float]:
@@ -93,6 +96,5 @@ class ColorCurves(Component):
         """The SH DC colour plus each Gaussian's curve at `when`."""
         params = gaussians.params
         offsets = deformation_channels(params[WEIGHTS], params[CENTRES], params[LOG_WIDTHS],
-                                       when.time)  # [N, 3]
-        sh = torch.cat([state.sh[:, :1] + offsets[:, None], state.sh[:, 1:]], dim=1)
-        return state.replace(sh=sh)
+                                       when.time)  # [N, 3], or [N, 1] achromatic
+        return state.with_dc_offset(offsets.expand(-1, COLOR_CHANNELS))

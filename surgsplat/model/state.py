@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import torch
 from torch import Tensor
 
 
@@ -22,3 +23,8 @@ class GaussianState:
     def replace(self, **changes: Tensor) -> "GaussianState":
         """A copy with some fields replaced."""
         return dataclasses.replace(self, **changes)
+
+    def with_dc_offset(self, offsets: Tensor) -> "GaussianState":
+        """A copy whose degree-0 SH colour coefficients have `offsets` [N, 3] added."""
+        return self.replace(sh=torch.cat([self.sh[:, :1] + offsets[:, None], self.sh[:, 1:]],
+                                         dim=1))

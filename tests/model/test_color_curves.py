@@ -46,6 +46,20 @@ def test_curves_start_as_the_identity_and_then_offset_only_the_dc_colour():
     assert params[WEIGHTS].grad.abs().sum() > 0
 
 
+def test_achromatic_curves_add_one_offset_to_every_channel():
+    generator = torch.Generator().manual_seed(1)
+    n = 30
+    curves = ColorCurvesConfig(num_basis=4, achromatic=True).build()
+    params = curves.initial_attributes(SimpleNamespace(points=torch.zeros(n, 3)))
+    assert params[WEIGHTS].shape == (n, 1, 4)
+    params[WEIGHTS] = torch.randn(n, 1, 4, generator=generator)
+    state = random_state(n, generator)
+    offset = (curves.transform(state, SimpleNamespace(params=params), FrameTime(0, 0.6)).sh[:, 0]
+              - state.sh[:, 0])
+    torch.testing.assert_close(offset, offset[:, :1].expand(-1, 3), rtol=0, atol=1e-6)
+    assert offset.abs().amax() > 0
+
+
 def test_the_curves_rates_decay_to_lr_decay_of_their_start():
     curves = ColorCurvesConfig(weights_lr=0.01, lr_decay=0.2).build()
     finals = curves.attribute_lr_finals()
