@@ -48,7 +48,8 @@ class Preset:
 def deform3dgs() -> MethodConfig:
     return MethodConfig(
         name="deform3dgs",
-        components={"deformation": GaussianBasisConfig(), "exposure": ExposureConfig(),
+        components={"deformation": GaussianBasisConfig(), "color_curves": ColorCurvesConfig(),
+                    "exposure": ExposureConfig(),
                     "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
         losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT)},
         init=InitConfig(fusion="mapf"))
@@ -57,7 +58,8 @@ def deform3dgs() -> MethodConfig:
 def endogaussian() -> MethodConfig:
     return MethodConfig(
         name="endogaussian",
-        components={"deformation": HexPlaneConfig(), "exposure": ExposureConfig(),
+        components={"deformation": HexPlaneConfig(), "color_curves": ColorCurvesConfig(),
+                    "exposure": ExposureConfig(),
                     "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
         losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT),
                 "plane_tv": LossWeight(1e-4), "time_smoothness": LossWeight(1e-3)},
@@ -90,7 +92,8 @@ def endoplanar() -> MethodConfig:
     gap to deform3dgs is the flat discs and their plane depth (issue 28)."""
     return MethodConfig(
         name="endoplanar",
-        components={"deformation": GaussianBasisConfig(), "exposure": ExposureConfig(),
+        components={"deformation": GaussianBasisConfig(), "color_curves": ColorCurvesConfig(),
+                    "exposure": ExposureConfig(),
                     "planar": PlanarConfig(), "photometric": PhotometricConfig(),
                     "depth": DepthLossConfig(form="inverse_l1")},
         losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT),
@@ -133,7 +136,8 @@ def endogsg() -> MethodConfig:
       (0.208): the projection is what buys the geometry, for about 1.9 dB."""
     return MethodConfig(
         name="endogsg",
-        components={"deformation": HexPlaneConfig(), "exposure": ExposureConfig(),
+        components={"deformation": HexPlaneConfig(), "color_curves": ColorCurvesConfig(),
+                    "exposure": ExposureConfig(),
                     "sdf": SDFConfig(),
                     "photometric": PhotometricConfig(occlusion_gamma=ENDO_GSG_GAMMA),
                     "depth": DepthLossConfig(occlusion_gamma=ENDO_GSG_GAMMA)},
@@ -168,8 +172,9 @@ def drawer() -> MethodConfig:
     method = endogsg()
     method.name = "drawer"
     deformation = method.components.pop("deformation")
+    curves = method.components.pop("color_curves")
     method.components = {"anchor": MeshAnchorConfig(), "deformation": deformation,
-                         "tool": ToolFieldConfig(), **method.components}
+                         "color_curves": curves, "tool": ToolFieldConfig(), **method.components}
     method.losses["mask"] = LossWeight(0.1)
     return method
 
@@ -208,7 +213,8 @@ def lumistate() -> MethodConfig:
       39.09 dB / 0.162 against 39.18 / 0.169 per Gaussian, without the tie."""
     return MethodConfig(
         name="lumistate",
-        components={"deformation": GaussianBasisConfig(), "exposure": ExposureConfig(),
+        components={"deformation": GaussianBasisConfig(), "color_curves": ColorCurvesConfig(),
+                    "exposure": ExposureConfig(),
                     "lumistate": LumiStateConfig(), "photometric": PhotometricConfig(),
                     "depth": DepthLossConfig()},
         losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT),
@@ -279,7 +285,8 @@ def physiosplat() -> MethodConfig:
     its silhouette over the tissue (issue 28)."""
     return MethodConfig(
         name="physiosplat",
-        components={"deformation": HexPlaneConfig(volume_samples=512), "tool": ToolFieldConfig(),
+        components={"deformation": HexPlaneConfig(volume_samples=512),
+                    "color_curves": ColorCurvesConfig(), "tool": ToolFieldConfig(),
                     "exposure": ExposureConfig(), "specular": SpecularConfig(),
                     "biomechanics": BiomechanicsConfig(), "photometric": PhotometricConfig(),
                     "depth": DepthLossConfig()},
@@ -349,7 +356,8 @@ def surgsplat() -> MethodConfig:
     gsg, planar, lumi = endogsg(), endoplanar(), lumistate()
     method = dataclasses.replace(gsg, name="surgsplat", gaussians=planar.gaussians)
     parts = gsg.components
-    method.components = {"deformation": parts["deformation"], "exposure": parts["exposure"],
+    method.components = {"deformation": parts["deformation"],
+                         "color_curves": parts["color_curves"], "exposure": parts["exposure"],
                          "lumistate": lumi.components["lumistate"], "sdf": parts["sdf"],
                          "planar": planar.components["planar"],
                          "photometric": parts["photometric"], "depth": parts["depth"]}

@@ -72,7 +72,8 @@ def test_the_phase_not_the_config_decides_the_order(small_phantom, tmp_path):
     preset = tiny(method_config("deform3dgs"))
     scrambled = copy.deepcopy(preset)
     scrambled.components = {name: scrambled.components[name]
-                            for name in ("exposure", "photometric", "deformation", "depth")}
+                            for name in ("exposure", "photometric", "color_curves",
+                                         "deformation", "depth")}
     runs = [Trainer(config, scene, tmp_path / str(number))
             for number, config in enumerate((preset, scrambled))]
     for run in runs:
