@@ -42,8 +42,10 @@ LOG_WIDTHS = "basis_log_widths"
 
 
 @dataclass
-class GaussianBasisConfig(ComponentConfig, kind="gaussian_basis"):
-    """Basis size, initial width and learning rates of a Gaussian-basis field."""
+class BasisCurvesConfig(ComponentConfig):
+    """Basis size, initial width and learning rates of per-Gaussian curves over time: the
+    Gaussian-basis field's (which move the Gaussians) and the colour curves'
+    (`model.color_curves`). The measurements below are the field's."""
 
     num_basis: int = field(default=8, metadata={"range": "[2, inf)"})
     """Number B of Gaussian basis functions per Gaussian (at least 2). Eight fit the smooth
@@ -76,15 +78,32 @@ class GaussianBasisConfig(ComponentConfig, kind="gaussian_basis"):
     end of training: full phantom, 3000 iterations, deform3dgs psnr_tissue 39.48 / 38.91 dB
     (seeds 0 / 1) at a constant rate, 42.65 / 42.83 with this decay, depth RMSE 0.052 ->
     0.023 mm (issue 28)."""
-    deform_color: bool = False
-    """Also deform the SH DC colour."""
 
-    def resolve(self, scene: SceneInfo) -> "GaussianBasisConfig":
+    def resolve(self, scene: SceneInfo) -> "BasisCurvesConfig":
         """This config for the scene's clip: at most one basis function per two frames, so that
         the curves cannot interpolate the held-out times arbitrarily; more for a long clip
         (`time_capacity`)."""
         return dataclasses.replace(self, num_basis=time_capacity(
             scene.num_frames, self.num_basis, self.long_clip_frames_per_basis, self.max_basis))
+
+    def curve_lrs(self, weights: str, centres: str, log_widths: str) -> dict[str, float]:
+        """Adam learning rates of the curves' three attributes, by the names they are kept
+        under in `GaussianModel.params`."""
+        return {weights: self.weights_lr, centres: self.centres_lr,
+                log_widths: self.log_widths_lr}
+
+    def curve_lr_finals(self, weights: str, centres: str, log_widths: str) -> dict[str, float]:
+        """The same rates at the end of the run (`lr_decay` of their start)."""
+        return {name: rate * self.lr_decay
+                for name, rate in self.curve_lrs(weights, centres, log_widths).items()}
+
+
+@dataclass
+class GaussianBasisConfig(BasisCurvesConfig, kind="gaussian_basis"):
+    """A Gaussian-basis deformation field: its curves, and whether colour deforms too."""
+
+    deform_color: bool = False
+    """Also deform the SH DC colour."""
 
     def build(self) -> "GaussianBasisField":
         return GaussianBasisField(self)
@@ -117,13 +136,10 @@ class GaussianBasisField(DeformationField):
         return Deformation.from_channels(channels, self.position_scale())
 
     def attribute_lrs(self) -> dict[str, float]:
-        config = self.config
-        return {WEIGHTS: config.weights_lr, CENTRES: config.centres_lr,
-                LOG_WIDTHS: config.log_widths_lr}
+        return self.config.curve_lrs(WEIGHTS, CENTRES, LOG_WIDTHS)
 
     def attribute_lr_finals(self) -> dict[str, float]:
-        decay = self.config.lr_decay
-        return {name: rate * decay for name, rate in self.attribute_lrs().items()}
+        return self.config.curve_lr_finals(WEIGHTS, CENTRES, LOG_WIDTHS)
 
 
 def identity_curves(num: int, channels: int, num_basis: int,

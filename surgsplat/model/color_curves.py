@@ -22,21 +22,21 @@ the phantom's highlights, like an endoscope's, clip the red channel, so the ligh
 not grey.
 
 Per-Gaussian attributes (in `GaussianModel.params`, so densification carries them along):
-color_basis_weights [N, 3, B] (SH DC units; [N, 1, B] when achromatic), color_basis_centres [N, B] (time) and
-color_basis_log_widths [N, B]. All weights start at 0, so the curves start as the identity.
+color_basis_weights [N, 3, B] (SH DC units; [N, 1, B] when achromatic), color_basis_centres
+[N, B] (time) and color_basis_log_widths [N, B]. All weights start at 0, so the curves start as the identity.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import torch
 
 from surgsplat.errors import SurgsplatError
-from surgsplat.fields.deformation import COLOR_CHANNELS, time_capacity
-from surgsplat.fields.gaussian_basis import deformation_channels, identity_curves
-from surgsplat.model.component import Component, ComponentConfig, FrameTime, SceneInfo
+from surgsplat.fields.deformation import COLOR_CHANNELS
+from surgsplat.fields.gaussian_basis import (BasisCurvesConfig, deformation_channels,
+                                             identity_curves)
+from surgsplat.model.component import Component, FrameTime
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 
@@ -46,33 +46,15 @@ LOG_WIDTHS = "color_basis_log_widths"
 
 
 @dataclass
-class ColorCurvesConfig(ComponentConfig, kind="color_curves"):
-    """Basis size and learning rates of the colour curves."""
+class ColorCurvesConfig(BasisCurvesConfig, kind="color_curves"):
+    """The colour curves: the Gaussian-basis field's basis, size and rates (`BasisCurvesConfig`),
+    but for the amplitudes' rate, and whether one curve serves all three channels."""
 
-    num_basis: int = field(default=8, metadata={"range": "[2, inf)"})
-    """Basis functions B per Gaussian (at least 2; at most one per two frames of the clip)."""
-    long_clip_frames_per_basis: int = field(default=250, metadata={"range": "[1, inf)"})
-    """Clips longer than this x num_basis frames get one basis function per this many frames."""
-    max_basis: int = field(default=16, metadata={"range": "[2, inf)"})
-    """Upper limit of the basis functions of a long clip."""
-    init_width: float = field(default=1.0, metadata={"range": "(0, inf)"})
-    """Initial width of every basis function, in units of the spacing of the centres."""
     weights_lr: float = field(default=2.5e-3, metadata={"range": "[0, inf)"})
-    """Adam learning rate of the amplitudes (SH DC units, as 3DGS's colour rate)."""
-    centres_lr: float = field(default=1.6e-3, metadata={"range": "[0, inf)"})
-    """Adam learning rate of the centres (time units; the clip spans [0, 1])."""
-    log_widths_lr: float = field(default=1e-2, metadata={"range": "[0, inf)"})
-    """Adam learning rate of the log-widths."""
-    lr_decay: float = field(default=0.1, metadata={"range": "(0, 1]"})
-    """Final over initial learning rate of the three (exponential decay over the run)."""
+    """Adam learning rate of the amplitudes (SH DC units, 3DGS's rate of the colour itself)."""
     achromatic: bool = False
     """One curve per Gaussian added to all three channels (light of the light's colour, as a
     specular highlight of the dichromatic reflection model), instead of one per channel."""
-
-    def resolve(self, scene: SceneInfo) -> "ColorCurvesConfig":
-        """This config for the scene's clip (`time_capacity`, as the Gaussian-basis field)."""
-        return dataclasses.replace(self, num_basis=time_capacity(
-            scene.num_frames, self.num_basis, self.long_clip_frames_per_basis, self.max_basis))
 
     def build(self) -> "ColorCurves":
         return ColorCurves(self)
@@ -95,12 +77,10 @@ class ColorCurves(Component):
         return {WEIGHTS: weights, CENTRES: centres, LOG_WIDTHS: log_widths}
 
     def attribute_lrs(self) -> dict[str, float]:
-        config = self.config
-        return {WEIGHTS: config.weights_lr, CENTRES: config.centres_lr,
-                LOG_WIDTHS: config.log_widths_lr}
+        return self.config.curve_lrs(WEIGHTS, CENTRES, LOG_WIDTHS)
 
     def attribute_lr_finals(self) -> dict[str, float]:
-        return {name: rate * self.config.lr_decay for name, rate in self.attribute_lrs().items()}
+        return self.config.curve_lr_finals(WEIGHTS, CENTRES, LOG_WIDTHS)
 
     def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
         """The SH DC colour plus each Gaussian's curve at `when`."""
