@@ -22,8 +22,8 @@ the phantom's highlights, like an endoscope's, clip the red channel, so the ligh
 not grey.
 
 Per-Gaussian attributes (in `GaussianModel.params`, so densification carries them along):
-color_basis_weights [N, 3, B] (SH DC units; [N, 1, B] when achromatic), color_basis_centres
-[N, B] (time) and color_basis_log_widths [N, B]. All weights start at 0, so the curves start as the identity.
+color_curve_weights [N, 3, B] (SH DC units; [N, 1, B] when achromatic), color_curve_centres
+[N, B] (time) and color_curve_log_widths [N, B]. All weights start at 0, so the curves start as the identity.
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ from surgsplat.model.component import Component, FrameTime
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
 
-WEIGHTS = "color_basis_weights"
-CENTRES = "color_basis_centres"
-LOG_WIDTHS = "color_basis_log_widths"
+WEIGHTS = "color_curve_weights"
+CENTRES = "color_curve_centres"
+LOG_WIDTHS = "color_curve_log_widths"
 
 
 @dataclass
