@@ -338,7 +338,7 @@ def surgsplat() -> MethodConfig:
     constant rates. With their rates decayed (issue 28), the Gaussian-basis field of
     deform3dgs reaches 44.16 dB and the HexPlane field of endogaussian 40.41 dB (full phantom,
     mean of 2 seeds), and this preset 41.14 dB (the fidelity suite). The HexPlane field's loss is
-    all on the moving highlights (README, where the HexPlane presets lose). This preset on the
+    all on the moving highlights, until the colour curves (below). This preset on the
     Gaussian-basis field instead (`--set 'components.deformation={"kind": "gaussian_basis"}'`,
     the HexPlane's two regularisers at weight 0; seeds 0 and 1): psnr_tissue 42.96 and 43.01 dB,
     depth RMSE 0.013 mm (0.021 here), normal error median 0.60 degrees (0.53), but
