@@ -357,9 +357,10 @@ def surgsplat() -> MethodConfig:
     What takes the highlights is the colour curves that every preset now has
     (`model.color_curves`): psnr_tissue 45.43 and 42.99 dB (seeds 0 and 1; 41.26 and 41.03
     without), psnr_specular 41.2 and 39.1; psnr_occluded within 0.7 dB, depth RMSE and both
-    P2S within 0.001 mm of what they were, normal error medians 0.03 degrees higher. Seed 1 costs the presets with an SDF (endogsg, drawer and this one) 1.9 to
-    2.6 dB where it costs endogaussian and physiosplat under 0.7: the SDF presets' seed spread
-    (issue 28) is back, and larger, now that the highlights no longer dominate the error."""
+    P2S within 0.001 mm of what they were, normal error medians 0.03 degrees higher. Seed 1
+    costs the presets with an SDF (endogsg, drawer and this one) 1.9 to 2.6 dB where it costs
+    endogaussian and physiosplat under 0.7: the SDF presets' seed spread (issue 28) is back,
+    and larger, now that the highlights no longer dominate the error."""
     gsg, planar, lumi = endogsg(), endoplanar(), lumistate()
     method = dataclasses.replace(gsg, name="surgsplat", gaussians=planar.gaussians)
     parts = gsg.components

@@ -23,7 +23,8 @@ not grey.
 
 Per-Gaussian attributes (in `GaussianModel.params`, so densification carries them along):
 color_curve_weights [N, 3, B] (SH DC units; [N, 1, B] when achromatic), color_curve_centres
-[N, B] (time) and color_curve_log_widths [N, B]. All weights start at 0, so the curves start as the identity.
+[N, B] (time) and color_curve_log_widths [N, B]. All weights start at 0, so the curves start
+as the identity.
 """
 
 from __future__ import annotations
