@@ -92,7 +92,8 @@ def test_two_components_of_a_phase_that_takes_one_are_refused_in_one_line():
     assert "\n" not in message
     assert "'deformation' and 'second' both have the phase deformation" in message
     with pytest.raises(SurgsplatError, match=r"^component 'odd' \(Stage\) declares the phase "
-                                             r"None; .* one of anchor, deformation, appearance, tool"):
+                                             r"None; .* one of anchor, deformation, appearance, "
+                                             r"tool"):
         order_by_phase({"odd": Stage(None, 1.0)})
 
 
