@@ -183,7 +183,11 @@ def drawer() -> MethodConfig:
     tool's fastest approach) lose most, on vessel edges over much of the image (frame 9, seed
     0, without the anchor: 36.0 dB against endogsg's 43.8), also in the tool-free render;
     cause not found (issue 28). Re-anchoring after every step the Gaussians whose centre left
-    its triangle was no better (seed 0: 37.80 dB against 38.61)."""
+    its triangle was no better (seed 0: 37.80 dB against 38.61). With the colour curves and
+    the projection from a third of the run (ENDO_GSG_PROJECTION_START; the fidelity suite):
+    45.50 / 43.56 dB (45.20 / 43.27 with the projection from the first step), but
+    opacity-weighted Gaussian P2S median 0.254 / 0.278 mm against 0.202 / 0.212: unlike
+    endogsg's, this preset's seed spread did not come from the projection (issue 28)."""
     method = endogsg()
     method.name = "drawer"
     deformation = method.components.pop("deformation")
