@@ -378,8 +378,9 @@ def surgsplat() -> MethodConfig:
     without), psnr_specular 41.2 and 39.1; psnr_occluded within 0.7 dB, depth RMSE and both
     P2S within 0.001 mm of what they were, normal error medians 0.03 degrees higher. Seed 1
     then cost the presets with an SDF (endogsg, drawer and this one) 1.9 to 2.6 dB, where it
-    cost endogaussian and physiosplat under 0.7; that was Endo-GSG's projection term pulling
-    from the first step (ENDO_GSG_PROJECTION_START). With it starting a third of the way in:
+    cost endogaussian and physiosplat under 0.7; for endogsg and this preset that was
+    Endo-GSG's projection term pulling from the first step (ENDO_GSG_PROJECTION_START; drawer's
+    spread has another cause). With it starting a third of the way in:
     45.75 and 44.79 dB, depth RMSE 0.019 and 0.022 mm, opacity-weighted Gaussian P2S median
     0.019 and 0.022 mm, SDF mesh P2S median 0.020 and 0.023 mm, reflectance_error 0.079 and
     0.065 (the fidelity suite)."""
