@@ -136,7 +136,11 @@ REAL_SCENES = {
 """Scenes imported from the real samples in ../shared/data (never copied into the repository):
 the CholecSeg8k clip with its tool labels (static camera, no depth) and the SCARED stereo pair
 (one frame, depth from stereo, no held-out frame: its metrics are of the training frame)."""
-STAGE1_ONLY = ("losses.retinex.weight=0", "losses.bright_channel.weight=0")
+STAGE1_ONLY = ("losses.retinex.weight=0", "losses.bright_channel.weight=0",
+               "losses.illumination_transfer.weight=0")
+"""`lumistate` without its Stage 2: none of the terms that start there (the Retinex, bright-channel
+and illumination-transfer terms; with the bright channel off, the tie alone would tie the
+modulation to an illumination map that nothing anchors)."""
 
 
 @dataclass(frozen=True)
