@@ -38,3 +38,11 @@ def test_sdf_presets_start_the_projection_a_third_of_the_way_in(name):
     the first step, seed 1 lost 2.6 dB), in every preset that composes Endo-GSG's terms."""
     projection = method_config(name).losses["projection"]
     assert [projection.window(n)[0] for n in (300, 3000)] == [100, 1000]
+
+
+def test_endoplanar_stops_its_normal_loss_two_thirds_in_and_surgsplat_keeps_it():
+    """EndoPlanar's depth-normal loss acts from a sixth to two thirds of the run (issue 28: to
+    the end it cost 0.3 dB of psnr_tissue); surgsplat keeps it to the end, as measured there."""
+    assert [method_config("endoplanar").losses["normal"].window(n) for n in (300, 3000)] == \
+        [(50, 200), (500, 2000)]
+    assert method_config("surgsplat").losses["normal"].window(3000) == (500, 3000)
