@@ -16,6 +16,7 @@ from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.losses.photometric import photometric_loss
 from surgsplat.methods.registry import PRESETS, method_config
+from surgsplat.methods.settings import LossWeight
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train import per_gaussian
@@ -50,7 +51,7 @@ def test_loss_falls(small_phantom, tmp_path, method):
     logged = [json.loads(line) for line in (tmp_path / "run" / LOG_FILE).read_text().splitlines()]
     assert logged[-1]["iteration"] == 60
     assert set(logged[-1]["terms"]) == {name for name, weight in saved["losses"].items()
-                                        if weight["weight"] and weight["start"] * 60 <= 60}
+                                        if LossWeight(**weight).active_at(60, 60)}
 
 
 @pytest.mark.parametrize("method, decaying, frozen", [
