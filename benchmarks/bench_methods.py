@@ -28,8 +28,9 @@ phantom's (it adds the true shading only), so issue 28's livar target is checked
 standard rows. Its TARGETS are checked in the report (`targets`: each with the measured value,
 the bound and whether it is met), on the means over the seeds.
 
-Suite `surgsplat` (issue 33): the combined preset and its leave-one-out rows, each without one
-paper's part (Endo-GSG's SDF, EndoPlanar's discs, LumiState's decomposition).
+Suite `surgsplat` (issue 33): the combined preset, its leave-one-out rows, each without one
+paper's part (EndoPlanar's discs, LumiState's decomposition), and the row with the part it left
+out after measuring it (Endo-GSG's SDF).
 
 Suite `real` (issue 33): deform3dgs and surgsplat on the real samples of ../shared/data
 (REAL_SCENES: the CholecSeg8k clip, the SCARED stereo pair), each imported once into the work
@@ -79,13 +80,14 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_render import results_path  # noqa: E402
 
 from surgsplat.atomic import write_text_atomic  # noqa: E402
+from surgsplat.methods import registry  # noqa: E402
 from surgsplat.render.native import system_info  # noqa: E402
 
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
@@ -163,12 +165,16 @@ PHYSIOSPLAT_WITHOUT_SPECULAR = ("components.specular=null",)
 specular lobe alone."""
 
 
-SURGSPLAT_WITHOUT_SDF = (
-    "components.sdf=null", "losses.eikonal=null", "losses.projection=null",
-    "losses.orientation=null", "losses.sda=null", "components.photometric.occlusion_gamma=0",
-    "components.depth.occlusion_gamma=0")
-"""The `surgsplat` preset without Endo-GSG's part: its SDF, the SDF's losses and the occlusion
-importance map (what is left of it is EndoGaussian's)."""
+ENDO_GSG_SDF_LOSSES = ("eikonal", "projection", "orientation", "sda")
+SURGSPLAT_WITH_SDF = (
+    'components.sdf={"kind": "sdf"}',
+    f"components.photometric.occlusion_gamma={registry.ENDO_GSG_GAMMA}",
+    f"components.depth.occlusion_gamma={registry.ENDO_GSG_GAMMA}",
+    *(f"losses.{term}={json.dumps(asdict(registry.endogsg().losses[term]))}"
+      for term in ENDO_GSG_SDF_LOSSES))
+"""The `surgsplat` preset with Endo-GSG's part added: its SDF, the SDF's losses and the occlusion
+importance map, at the endogsg preset's values (what the preset had before issue 33's
+leave-one-out measured it)."""
 SURGSPLAT_WITHOUT_PLANAR = ("components.planar=null", "losses.flatten=null", "losses.normal=null",
                             "gaussians.init_thickness=1")
 SURGSPLAT_WITHOUT_LUMISTATE = ("components.lumistate=null", "losses.retinex=null",
@@ -313,7 +319,7 @@ SUITES = {
     "surgsplat": Suite(
         cases=(
             Case("surgsplat", "surgsplat", "pulling"),
-            Case("surgsplat-no-sdf", "surgsplat", "pulling", SURGSPLAT_WITHOUT_SDF),
+            Case("surgsplat-with-sdf", "surgsplat", "pulling", SURGSPLAT_WITH_SDF),
             Case("surgsplat-no-planar", "surgsplat", "pulling", SURGSPLAT_WITHOUT_PLANAR),
             Case("surgsplat-no-lumistate", "surgsplat", "pulling", SURGSPLAT_WITHOUT_LUMISTATE),
         ),

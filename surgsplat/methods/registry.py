@@ -369,81 +369,49 @@ def physiosplat() -> MethodConfig:
 
 
 def surgsplat() -> MethodConfig:
-    """The project's own method (issue 33): Endo-GSG's components and weights (EndoGaussian's
-    HexPlane deformation, the canonical SDF giving each Gaussian its opacity, the occlusion
-    importance map), EndoPlanar's flat discs with their flatten and depth-normal losses, and
-    LumiState's reflectance x illumination decomposition with its Stage 2 losses, each at its
-    own preset's values. Why each part is there, from the fidelity suite (full phantom, 3000
-    iterations, mean of 2 seeds, against the preset the paper extends):
-    - the HexPlane field: psnr_occluded +3.6 dB, Gaussian P2S 0.48x, depth RMSE 0.63x of
-      deform3dgs's, psnr_tissue +0.4 dB;
-    - the SDF: psnr_occluded +2.1 dB and opacity-weighted Gaussian P2S 0.80x of endogaussian's,
-      and a mesh of its zero level set without a fitting step;
-    - the discs and the depth-normal loss: median normal error 0.21x of deform3dgs's;
-    - the decomposition: reflectance_error 0.47x of the naive baseline's.
-    Left out, as measured: PhysioSplat's tool field and lobe (psnr_occluded and depth below
-    endogaussian's, specular PSNR no better) and DRAWER's mesh anchor (about 2 dB of
-    psnr_tissue when this preset was composed; since its shapes are projected and its
-    normal-scale and tilt clips open, the anchor alone measures 0.66 dB above endogsg, 2 seeds,
-    see `drawer`: a candidate not yet tried here). The discs' inverse-depth form and MOG2
-    fusion give way to Endo-GSG's depth L1 and MAPF fusion, which the SDF preset was measured
-    with.
-    Measured (full phantom, 3000 iterations, issue 33): mean of seeds 0 and 1, psnr_tissue 39.46
-    dB (40.73 and 38.20: the widest seed spread of any preset, from three of eight test frames),
-    Gaussian P2S median 0.033 mm (opacity-weighted; endogsg 0.170, endoplanar 0.229), normal
-    error median 0.59 degrees, depth RMSE 0.041 mm, reflectance_error 0.075, at 2.95x
-    deform3dgs's CPU time. Discs and SDF do not conflict, they compound: together they put the
-    Gaussians 3x (against the discs alone) to 7x (against the SDF alone) closer to the surface.
-    Leave-one-out (means of seeds 0 and 1 against the full preset's 39.46 dB, P2S 0.033 mm,
-    normals 0.59 degrees): without the discs 40.59 dB (-0.32 and +2.56 dB by seed), P2S 0.199
-    mm, normals 3.2 degrees; without the decomposition 37.74 dB (-2.3 and -1.1 dB by seed) and
-    the naive reflectance (0.159), with a closer surface (depth RMSE 0.027, P2S 0.020, mesh P2S
-    0.023 mm: the decomposition costs geometry); without the SDF 38.85 dB (-1.55 and +0.33 dB
-    by seed), P2S 0.074 mm, depth RMSE 0.066 mm. The discs are kept for the surface at a PSNR
-    cost that one pair of seeds does not pin down. Real data (seed 0, `bench_methods.py --suite
-    real`): CholecSeg8k clip 26.55 dB against deform3dgs's 26.22; the SCARED stereo pair's one
-    frame fitted to 36.28 dB against 39.79 (issue 33).
-    Every figure above was measured while the deformation fields and the exposure trained at
-    constant rates. With their rates decayed (issue 28), the Gaussian-basis field of
-    deform3dgs reaches 44.16 dB and the HexPlane field of endogaussian 40.41 dB (full phantom,
-    mean of 2 seeds), and this preset 41.14 dB (the fidelity suite). The HexPlane field's loss is
-    all on the moving highlights, until the colour curves (below). This preset on the
-    Gaussian-basis field instead (`--set 'components.deformation={"kind": "gaussian_basis"}'`,
-    the HexPlane's two regularisers at weight 0; seeds 0 and 1): psnr_tissue 42.96 and 43.01 dB,
-    depth RMSE 0.013 mm (0.021 here), normal error median 0.60 degrees (0.53), but
-    psnr_occluded 25.06 and 24.43 dB (29.36 here), opacity-weighted Gaussian P2S median 0.092
-    mm (0.019) and SDF mesh P2S median 0.153 mm (0.022): the shared field is what carries
-    visible motion into the hidden tissue and keeps the Gaussians on the surface, so it stays.
-    Nor is PhysioSplat's lobe part of it, though here it is shaded from the discs' normals (0.5
-    degrees from the truth, where the depth's normals scatter it): with it (`--set
-    'components.specular={"kind": "specular"}'`, the lobe then scaled by the exposure gain;
-    seeds 0 and 1) psnr_tissue 41.56 and 41.25 dB (+0.26 on the mean), psnr_occluded 30.21 and
-    29.85 (+0.67), but psnr_specular 35.42 and 35.18 (+0.10: it still does not take the
-    highlights, its sharpness ends at a median of 10) and reflectance_error 0.087 and 0.084
-    against 0.071: a lobe that lights everything a little, not a highlight model. On the
-    Gaussian-basis field likewise (seed 0): 43.30 against 42.96 dB, psnr_specular 39.20
-    against 39.07.
-    What takes the highlights is the colour curves that every preset now has
-    (`model.color_curves`): psnr_tissue 45.43 and 42.99 dB (seeds 0 and 1; 41.26 and 41.03
-    without), psnr_specular 41.2 and 39.1; psnr_occluded within 0.7 dB, depth RMSE and both
-    P2S within 0.001 mm of what they were, normal error medians 0.03 degrees higher. Seed 1
-    then cost the presets with an SDF (endogsg, drawer and this one) 1.9 to 2.6 dB, where it
-    cost endogaussian and physiosplat under 0.7; for endogsg and this preset that was
-    Endo-GSG's projection term pulling from the first step (ENDO_GSG_PROJECTION_START; drawer's
-    spread has another cause). With it starting a third of the way in:
-    45.75 and 44.79 dB, depth RMSE 0.019 and 0.022 mm, opacity-weighted Gaussian P2S median
-    0.019 and 0.022 mm, SDF mesh P2S median 0.020 and 0.023 mm, reflectance_error 0.079 and
-    0.065 (the fidelity suite)."""
-    gsg, planar, lumi = endogsg(), endoplanar(), lumistate()
-    method = dataclasses.replace(gsg, name="surgsplat", gaussians=planar.gaussians)
-    parts = gsg.components
+    """The project's own method (issue 33): EndoGaussian's HexPlane deformation (with its plane
+    TV and time smoothness), EndoPlanar's flat discs with their flatten and depth-normal losses,
+    and LumiState's reflectance x illumination decomposition with its Stage 2 losses, each at
+    its own preset's values, on every preset's colour curves and exposure curve. The combined
+    suite (`bench_methods.py --suite surgsplat`, full phantom, 3000 iterations, seeds 0 and 1)
+    measures what each part adds; the fidelity suite, this preset beside every single one:
+    - the HexPlane field carries the visible motion into the hidden tissue (psnr_occluded) and
+      keeps the Gaussians on the surface; on the Gaussian-basis field instead (`--set
+      'components.deformation={"kind": "gaussian_basis"}'`, before the colour curves) this
+      combination lost 4 dB of psnr_occluded and 5x the opacity-weighted Gaussian P2S;
+    - the discs and the depth-normal loss, kept to the end of the run (the endoplanar preset
+      stops it at ENDOPLANAR_NORMAL_STOP; here it was measured to the end): in the combination
+      with the SDF (4b252f8), without them the median normal error was 5x and the
+      opacity-weighted Gaussian P2S 12x, at equal psnr_tissue;
+    - the decomposition: the reflectance (the tissue's colour without the light); with the SDF
+      (4b252f8), at 0.45x the naive reflectance_error, for 0.65 dB of psnr_tissue and 1.3x the
+      CPU time.
+    Left out, as measured:
+    - Endo-GSG's SDF (with its losses and occlusion importance map): in this combination (4b252f8,
+      seeds 0 and 1) it cost 0.65 / 0.83 dB of psnr_tissue, 0.2 / 0.9 dB of psnr_occluded, a
+      higher depth RMSE (0.019 / 0.022 mm against 0.018 / 0.021) and 1.25x the CPU time, for
+      an opacity-weighted Gaussian P2S median of 0.019 / 0.022 mm against 0.040 / 0.044 and an
+      SDF-route mesh (P2S median 0.020 / 0.023 mm; the fitted mesh without it 0.031 / 0.028).
+      The discs already hold the Gaussians on the surface, so the two parts overlap where the
+      SDF was to help, and the SDF's cost stays (`bench_methods.py --suite surgsplat`'s
+      surgsplat-with-sdf row);
+    - PhysioSplat's tool field and specular lobe: below endogaussian in psnr_occluded and hidden
+      depth; the lobe, shaded from the discs' normals, did not take the highlights (seeds 0
+      and 1, before the colour curves: psnr_specular +0.10 dB, reflectance_error 0.087 against
+      0.071); the colour curves take them;
+    - DRAWER's mesh anchor: it anchors Gaussians on the SDF's mesh, which this preset has not.
+    The inverse-depth loss and MOG2 fusion of the discs' paper give way to the baselines' depth
+    L1 and MAPF fusion, as in the presets this one was measured against."""
+    base, planar, lumi = endogaussian(), endoplanar(), lumistate()
+    method = dataclasses.replace(base, name="surgsplat", gaussians=planar.gaussians)
+    parts = base.components
     method.components = {"deformation": parts["deformation"],
                          "color_curves": parts["color_curves"], "exposure": parts["exposure"],
-                         "lumistate": lumi.components["lumistate"], "sdf": parts["sdf"],
+                         "lumistate": lumi.components["lumistate"],
                          "planar": planar.components["planar"],
                          "photometric": parts["photometric"], "depth": parts["depth"]}
     method.losses["flatten"] = planar.losses["flatten"]
-    # to the end of the run, as it was measured in this preset (not yet with the endoplanar
+    # to the end of the run, as it was measured in this preset (not with the endoplanar
     # preset's stop, ENDOPLANAR_NORMAL_STOP)
     method.losses["normal"] = dataclasses.replace(planar.losses["normal"], stop=1.0)
     for term in ("retinex", "bright_channel", "illumination_transfer"):
@@ -452,7 +420,7 @@ def surgsplat() -> MethodConfig:
 
 
 PRESETS: dict[str, Preset] = {
-    "surgsplat": Preset("surgsplat's own method: Endo-GSG's HexPlane deformation and SDF opacity, "
+    "surgsplat": Preset("surgsplat's own method: EndoGaussian's HexPlane deformation, "
                         "EndoPlanar's discs and depth-normal loss, LumiState's reflectance x "
                         "illumination", surgsplat),
     "deform3dgs": Preset("Deform3DGS baseline: per-Gaussian Gaussian-basis deformation, "
