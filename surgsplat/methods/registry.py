@@ -352,7 +352,11 @@ def physiosplat() -> MethodConfig:
     42.03, visible depth RMSE 3.4 mm); the registered poses frozen (learning rates 0) gave
     46.33 / 45.67 and lost 1.9 dB of psnr_occluded (24.78 / 24.63 against 26.62 / 26.66).
     Nor is the specular lobe the gap to endogaussian: without it (the physiosplat suite's row
-    (c)) 46.03 / 45.68 dB, at 0.86x the CPU time."""
+    (c)) 46.03 / 45.68 dB, at 0.86x the CPU time. The tool field is (row (b), the tool field
+    alone on endogaussian's field, commit 4b252f8): 46.18 / 45.69 dB against endogaussian's
+    46.95 / 46.26, and this preset 46.50 / 45.97 at that commit. CPU time against
+    endogaussian's (353 s): the tool field 1.27x, with the biomechanics 1.43x, with the lobe
+    (the preset) 1.56x, where the target is 1.5x."""
     return MethodConfig(
         name="physiosplat",
         components={"deformation": HexPlaneConfig(volume_samples=512),
@@ -372,29 +376,31 @@ def surgsplat() -> MethodConfig:
     """The project's own method (issue 33): EndoGaussian's HexPlane deformation (with its plane
     TV and time smoothness), EndoPlanar's flat discs with their flatten and depth-normal losses,
     and LumiState's reflectance x illumination decomposition with its Stage 2 losses, each at
-    its own preset's values, on every preset's colour curves and exposure curve. The combined
-    suite (`bench_methods.py --suite surgsplat`, full phantom, 3000 iterations, seeds 0 and 1)
-    measures what each part adds; the fidelity suite, this preset beside every single one:
-    - the HexPlane field carries the visible motion into the hidden tissue (psnr_occluded) and
-      keeps the Gaussians on the surface; on the Gaussian-basis field instead (`--set
+    its own preset's values, on every preset's colour curves and exposure curve. What each part
+    adds, from the combined suite (`bench_methods.py --suite surgsplat`: full phantom, 3000
+    iterations, means of seeds 0 and 1; this preset 46.01 dB psnr_tissue, psnr_occluded 28.87,
+    depth RMSE 0.019 mm, normal error median 0.52 degrees, opacity-weighted Gaussian P2S median
+    0.042 mm, reflectance_error 0.074, 581 CPU s):
+    - the HexPlane field carries the visible motion into the hidden tissue and keeps the
+      Gaussians on the surface; on the Gaussian-basis field instead (`--set
       'components.deformation={"kind": "gaussian_basis"}'`, before the colour curves) this
-      combination lost 4 dB of psnr_occluded and 5x the opacity-weighted Gaussian P2S;
+      combination lost 4.6 dB of psnr_occluded and had 5x the opacity-weighted Gaussian P2S;
     - the discs and the depth-normal loss, kept to the end of the run (the endoplanar preset
-      stops it at ENDOPLANAR_NORMAL_STOP; here it was measured to the end): in the combination
-      with the SDF (4b252f8), without them the median normal error was 5x and the
-      opacity-weighted Gaussian P2S 12x, at equal psnr_tissue;
-    - the decomposition: the reflectance (the tissue's colour without the light); with the SDF
-      (4b252f8), at 0.45x the naive reflectance_error, for 0.65 dB of psnr_tissue and 1.3x the
-      CPU time.
+      stops it at ENDOPLANAR_NORMAL_STOP; here it was measured to the end): without them the
+      normal error median is 2.14 degrees, the Gaussian P2S 0.284 mm and the depth RMSE 0.026
+      mm, at 46.12 dB (seeds 46.66 / 45.57 against 46.40 / 45.62) and 0.80x the CPU time;
+    - the decomposition gives the reflectance (the tissue's colour without the light): without
+      it reflectance_error is the naive 0.160, psnr_tissue 46.59 dB (-0.58 with it),
+      psnr_occluded 28.10 (+0.77 with it), at 0.78x the CPU time. It stays for the
+      illumination it separates, which no other part gives.
     Left out, as measured:
-    - Endo-GSG's SDF (with its losses and occlusion importance map): in this combination (4b252f8,
-      seeds 0 and 1) it cost 0.65 / 0.83 dB of psnr_tissue, 0.2 / 0.9 dB of psnr_occluded, a
-      higher depth RMSE (0.019 / 0.022 mm against 0.018 / 0.021) and 1.25x the CPU time, for
-      an opacity-weighted Gaussian P2S median of 0.019 / 0.022 mm against 0.040 / 0.044 and an
-      SDF-route mesh (P2S median 0.020 / 0.023 mm; the fitted mesh without it 0.031 / 0.028).
-      The discs already hold the Gaussians on the surface, so the two parts overlap where the
-      SDF was to help, and the SDF's cost stays (`bench_methods.py --suite surgsplat`'s
-      surgsplat-with-sdf row);
+    - Endo-GSG's SDF (with its losses and occlusion importance map), which this preset had until
+      the leave-one-out at the current code (the suite's surgsplat-with-sdf row): with it
+      psnr_tissue 45.27 dB (45.75 / 44.79), psnr_occluded 28.29, depth RMSE 0.021 mm, 1.25x the
+      CPU time, for an opacity-weighted Gaussian P2S of 0.020 mm and an SDF-route mesh (P2S
+      median 0.021 mm; the fitted mesh without it 0.030). The discs already hold the Gaussians
+      on the surface, so the SDF's gain is small where its cost is not; on the hivar phantom
+      leaving it out gained 0.60 dB, on the moving camera 0.63 dB (the fidelity suite);
     - PhysioSplat's tool field and specular lobe: below endogaussian in psnr_occluded and hidden
       depth; the lobe, shaded from the discs' normals, did not take the highlights (seeds 0
       and 1, before the colour curves: psnr_specular +0.10 dB, reflectance_error 0.087 against
