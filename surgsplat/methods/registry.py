@@ -390,8 +390,9 @@ def surgsplat() -> MethodConfig:
     0.042 mm, reflectance_error 0.074, 581 CPU s):
     - the HexPlane field carries the visible motion into the hidden tissue and keeps the
       Gaussians on the surface; on the Gaussian-basis field instead (`--set
-      'components.deformation={"kind": "gaussian_basis"}'`, before the colour curves) this
-      combination lost 4.6 dB of psnr_occluded and had 5x the opacity-weighted Gaussian P2S;
+      'components.deformation={"kind": "gaussian_basis"}'`, before the colour curves and with
+      the SDF this preset then had) it lost 4.6 dB of psnr_occluded and had 5x the
+      opacity-weighted Gaussian P2S;
     - the discs and the depth-normal loss, kept to the end of the run (the endoplanar preset
       stops it at ENDOPLANAR_NORMAL_STOP; here it was measured to the end): without them the
       normal error median is 2.14 degrees, the Gaussian P2S 0.284 mm and the depth RMSE 0.026
