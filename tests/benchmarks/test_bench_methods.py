@@ -92,3 +92,23 @@ def test_a_rescored_row_takes_the_new_metrics_and_keeps_its_training_columns(tmp
     assert rescored["psnr_tissue"] == 40.0 and rescored["psnr_outside_highlights"] == 45.0
     assert rescored["train_cpu_seconds"] == 495.3 and rescored["commit"] == "abc"
     assert "lpips_note" not in rescored and "rescored_commit" in rescored
+
+
+def test_the_combined_suites_sdf_row_adds_endogsgs_part_to_surgsplat():
+    """surgsplat has no SDF (issue 33's leave-one-out measured it out); the suite's add-one row
+    puts back Endo-GSG's SDF, its losses and its occlusion map at the endogsg preset's values."""
+    from surgsplat.methods.overrides import apply_values, parse_assignment
+    from surgsplat.methods.registry import method_config
+
+    plain = method_config("surgsplat")
+    assert "sdf" not in plain.components
+    assert not set(bench_methods.ENDO_GSG_SDF_LOSSES) & set(plain.losses)
+    with_sdf = plain
+    for setting in bench_methods.SURGSPLAT_WITH_SDF:
+        with_sdf = apply_values(with_sdf, parse_assignment(setting))
+    endogsg = method_config("endogsg")
+    assert with_sdf.components["sdf"] == endogsg.components["sdf"]
+    assert with_sdf.components["photometric"] == endogsg.components["photometric"]
+    assert with_sdf.components["depth"] == endogsg.components["depth"]
+    for term in bench_methods.ENDO_GSG_SDF_LOSSES:
+        assert with_sdf.losses[term] == endogsg.losses[term]
