@@ -179,8 +179,12 @@ def main() -> None:
                         help="also compare deform3dgs trained without and with auto masks")
     parser.add_argument("--seeds", type=int, default=1,
                         help="training seeds per case; the table shows their mean")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="threads of every surgsplat process (default: one per core)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/surgsplat-bench-auto-masks"))
     args = parser.parse_args()
+    if args.threads is not None:
+        SURGSPLAT.extend(["--threads", str(args.threads)])
     config = AutoMaskConfig()
     for assignment in args.set:
         name, value = assignment.split("=")

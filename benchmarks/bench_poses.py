@@ -263,6 +263,8 @@ def main() -> None:
                         "generate one of --preset into --work)")
     parser.add_argument("--preset", default="full", help="phantom size to generate")
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="CholecSeg8k clip")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="threads of every surgsplat process (default: one per core)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/surgsplat-bench-poses"))
     parser.add_argument("--out", type=Path, help="JSON file (default: "
                         "benchmarks/results/bench_poses-<cpu>-<best ISA>.json)")
@@ -279,6 +281,8 @@ def main() -> None:
     parser.add_argument("--merge", action="store_true",
                         help="keep the sections of the results file that this run does not make")
     args = parser.parse_args()
+    if args.threads is not None:
+        SURGSPLAT.extend(["--threads", str(args.threads)])
     args.work.mkdir(parents=True, exist_ok=True)
     phantom = args.phantom
     if phantom is None:
