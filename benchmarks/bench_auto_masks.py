@@ -1,10 +1,12 @@
-"""Automatic tool masks (`surgsplat import --auto-tool-masks`) against CholecSeg8k labels.
+"""Automatic tool masks (`surgsplat import --auto-tool-masks`) on clips with true tool masks.
 
     python benchmarks/bench_auto_masks.py [--data PATH] [--out FILE] [--overlays DIR]
-                                          [--train-iters N --seeds S --work DIR]
+                                          [--phantoms DIR...] [--tool-free DIR]
+                                          [--train-iters N --seeds S --train-on CLIP...
+                                           --work DIR --threads T]
 
-The clip's frames that have labels are split in two consecutive halves: the first half
-(frames 561-596 of the shared sample) is where the segmenter's parameters were chosen, the
+CholecSeg8k: the clip's frames that have labels are split in two consecutive halves: the first
+half (frames 561-596 of the shared sample) is where the segmenter's parameters were chosen, the
 second half (597-632) is held out and only scored. Tool = classes 31 (grasper) and 32
 (L-hook). IoU, precision and recall of the tool class are pooled over the pixels of each split
 inside the field of view (label 50 = border is outside); the IoU of every frame (inside the
@@ -12,11 +14,21 @@ field of view), each split's lowest, and the segmenter's per-frame confidence ar
 Frames are segmented as one sequence, as the importer does, so the temporal window sees each
 frame's neighbours; seconds per frame are those of that whole pass at the clip's size.
 
-With --train-iters, the labelled frames are also imported three times at half size (no masks,
---auto-tool-masks, and the labels as masks), `deform3dgs` is trained for N iterations on each
-(once per training seed 0..S-1; the mean is reported; the labels' row is the reference of
-perfect masks), and every run is scored on the test frames against the labelled scene, so that
-all are scored over the same, truly tool-free pixels.
+Clips the segmenter was not tuned on (`unseen_clips`): surgsplat phantoms (a grey metal shaft
+and jaw on textured tissue; true masks in masks/), by default the full standard phantom, the
+high-variation light, and the cutting motion seen by a moving camera with another seed
+(generated into --work unless given as NAME=DIR), scored the same way over every frame; and the
+tool-free left frame of the SCARED sample (`tool_free`), where every marked pixel is a false
+alarm: its share of the field of view.
+
+With --train-iters, each clip of --train-on (cholecseg8k, phantom) is also trained three times:
+without masks, with the automatic masks and with the true masks (the reference of perfect
+masks). The clip is imported at half size (CholecSeg8k: `import` without masks, with
+--auto-tool-masks and with the labels; a phantom: its own scene without masks/, with the
+segmenter's masks written into masks/, and as it is). `deform3dgs` is trained for N iterations
+on each (once per training seed 0..S-1; the mean is reported), and every run is scored on the
+test frames against the true masks' scene, so that all are scored over the same, truly
+tool-free pixels.
 """
 
 from __future__ import annotations
@@ -27,7 +39,7 @@ import json
 import subprocess
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
@@ -39,6 +51,7 @@ from bench_render import write_report  # noqa: E402
 from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks  # noqa: E402
 from surgsplat.data.fov_mask import estimate_fov  # noqa: E402
 from surgsplat.data.frames_source import name_numbers  # noqa: E402
+from surgsplat.data.layout import IMAGES_DIR, MASKS_DIR  # noqa: E402
 from surgsplat.data.scene import load_scene, read_image  # noqa: E402
 from surgsplat.data.tool_masks import read_tool_labels  # noqa: E402
 from surgsplat.errors import DataError  # noqa: E402
@@ -46,8 +59,29 @@ from surgsplat.eval.run_metrics import EvalOptions, evaluate_run  # noqa: E402
 from surgsplat.train.run import load_trained_run  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "cholecseg8k-clip"
+DEFAULT_TOOL_FREE = DEFAULT_DATA.parent / "scared-stereo-sample" / "left"
 TOOL_LABELS = (31, 32)
 BORDER_LABEL = 50
+PHANTOMS = {"phantom": ("--preset", "full"),
+            "phantom-hivar": ("--preset", "full", "--lighting", "hivar"),
+            "phantom-cutting-moving": ("--preset", "full", "--motion", "cutting", "--camera",
+                                       "moving", "--seed", "1")}
+"""`surgsplat phantom` options of the default unseen clips."""
+SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
+
+
+@dataclass
+class Clip:
+    """Frames with their true tool masks."""
+
+    name: str
+    numbers: list[int]
+    images: list[np.ndarray]
+    """uint8 RGB [H, W, 3] per frame."""
+    truths: list[np.ndarray]
+    """bool [H, W] per frame, True = tool."""
+    scored: list[np.ndarray]
+    """bool [H, W] per frame: the pixels that are scored (inside the field of view)."""
 
 
 def labelled_frames(data: Path) -> list[tuple[int, Path, Path]]:
@@ -63,16 +97,51 @@ def labelled_frames(data: Path) -> list[tuple[int, Path, Path]]:
     return rows
 
 
+def cholec_clip(data: Path) -> Clip:
+    rows = labelled_frames(data)
+    return Clip("cholecseg8k", [number for number, _, _ in rows],
+                [read_image(frame) for _, frame, _ in rows],
+                [read_tool_labels(labels, TOOL_LABELS) for _, _, labels in rows],
+                [cv2.imread(str(labels), cv2.IMREAD_GRAYSCALE) != BORDER_LABEL
+                 for _, _, labels in rows])
+
+
+def phantom_clip(name: str, folder: Path) -> Clip:
+    """A surgsplat phantom's frames and masks/ (255 = tool); every pixel is scored."""
+    frames = sorted((folder / IMAGES_DIR).glob("*.png"))
+    if not frames or not (folder / MASKS_DIR).is_dir():
+        raise DataError(folder, "expected a surgsplat phantom with images/ and masks/")
+    images = [read_image(frame) for frame in frames]
+    return Clip(name, list(range(len(frames))), images,
+                [read_tool_labels(folder / MASKS_DIR / frame.name, None) for frame in frames],
+                [np.ones(image.shape[:2], bool) for image in images])
+
+
+def tool_free_clip(folder: Path) -> Clip:
+    """The PNG frames in `folder`, none of which shows a tool."""
+    frames = sorted(folder.glob("*.png"))
+    if not frames:
+        raise DataError(folder, "expected PNG frames without tools")
+    images = [read_image(frame) for frame in frames]
+    fov = estimate_fov(images).inside
+    return Clip(f"tool-free {folder.parent.name}", list(range(len(frames))), images,
+                [np.zeros(image.shape[:2], bool) for image in images], [fov] * len(images))
+
+
 def counts(predicted: np.ndarray, truth: np.ndarray, inside: np.ndarray) -> np.ndarray:
-    """[true positives, false positives, false negatives] of the tool over `inside` pixels."""
+    """[true positives, false positives, false negatives, pixels] of the tool over `inside`."""
     p, t = predicted & inside, truth & inside
-    return np.array([(p & t).sum(), (p & ~t).sum(), (~p & t).sum()], dtype=np.int64)
+    return np.array([(p & t).sum(), (p & ~t).sum(), (~p & t).sum(), inside.sum()],
+                    dtype=np.int64)
 
 
 def scores(tally: np.ndarray) -> dict:
-    tp, fp, fn = (int(v) for v in tally)
-    return {"iou": tp / max(tp + fp + fn, 1), "precision": tp / max(tp + fp, 1),
-            "recall": tp / max(tp + fn, 1), "tool_pixels": tp + fn}
+    """IoU, precision, recall and false alarms over the scored pixels of a tally of `counts`;
+    IoU is 1 where neither the truth nor the answer has a tool pixel (both empty agree)."""
+    tp, fp, fn, pixels = (int(v) for v in tally)
+    return {"iou": tp / (tp + fp + fn) if tp + fp + fn else 1.0, "precision": tp / max(tp + fp, 1),
+            "recall": tp / max(tp + fn, 1), "tool_pixels": tp + fn,
+            "false_alarm_share": fp / max(pixels, 1)}
 
 
 def overlay(image: np.ndarray, predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -84,86 +153,123 @@ def overlay(image: np.ndarray, predicted: np.ndarray, truth: np.ndarray) -> np.n
     return picture
 
 
-def run(data: Path, config: AutoMaskConfig, overlays: Path | None) -> dict:
-    rows = labelled_frames(data)
-    half = len(rows) // 2
-    images = [read_image(frame) for _, frame, _ in rows]
-    truths = [read_tool_labels(labels, TOOL_LABELS) for _, _, labels in rows]
-    borders = [cv2.imread(str(labels), cv2.IMREAD_GRAYSCALE) == BORDER_LABEL
-               for _, _, labels in rows]
-    fov = estimate_fov(images).inside
+def score_clip(clip: Clip, splits: dict[str, range], config: AutoMaskConfig,
+               overlays: Path | None) -> tuple[dict, list[np.ndarray]]:
+    """Segment the clip as one sequence (as the importer does) and score each split: pooled
+    scores, the lowest frame IoU, every frame's IoU and confidence, and seconds per frame.
+    Also returns the masks (bool [H, W] per frame)."""
+    fov = estimate_fov(clip.images).inside
     started = time.perf_counter()
-    results = list(auto_tool_masks(images, fov, config))
-    seconds = (time.perf_counter() - started) / len(images)
-    tallies = {"tuning": np.zeros(3, np.int64), "held_out": np.zeros(3, np.int64)}
+    results = list(auto_tool_masks(clip.images, fov, config))
+    seconds = (time.perf_counter() - started) / len(clip.images)
+    report: dict = {"size": [clip.images[0].shape[1], clip.images[0].shape[0]],
+                    "splits": {name: [clip.numbers[positions[0]], clip.numbers[positions[-1]]]
+                               for name, positions in splits.items()}}
     per_frame = []
-    for position, (result, truth, border) in enumerate(zip(results, truths, borders)):
-        split = "tuning" if position < half else "held_out"
-        tally = counts(result.mask, truth, ~border)
-        tallies[split] += tally
-        per_frame.append({"frame": rows[position][0], "split": split,
-                          "iou": scores(tally)["iou"], "confidence": result.confidence})
-        if overlays is not None and position % 6 == 0:
-            overlays.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(overlays / f"frame_{rows[position][0]}_{split}.png"),
-                        overlay(images[position], result.mask, truth))
-    numbers = [number for number, _, _ in rows]
-    return {
-        "data": str(data), "size": [images[0].shape[1], images[0].shape[0]],
-        "splits": {"tuning": [numbers[0], numbers[half - 1]],
-                   "held_out": [numbers[half], numbers[-1]]},
-        "config": asdict(config),
-        **{split: {**scores(tally), "frame_iou_min": min(
+    for split, positions in splits.items():
+        tally = np.zeros(4, np.int64)
+        for position in positions:
+            frame_tally = counts(results[position].mask, clip.truths[position],
+                                 clip.scored[position])
+            tally += frame_tally
+            per_frame.append({"frame": clip.numbers[position], "split": split,
+                              "iou": scores(frame_tally)["iou"],
+                              "confidence": results[position].confidence})
+            if overlays is not None and position % 6 == 0:
+                folder = overlays / clip.name.replace(" ", "-")
+                folder.mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(folder / f"frame_{clip.numbers[position]}_{split}.png"),
+                            overlay(clip.images[position], results[position].mask,
+                                    clip.truths[position]))
+        report[split] = {**scores(tally), "frame_iou_min": min(
             row["iou"] for row in per_frame if row["split"] == split)}
-           for split, tally in tallies.items()},
-        "per_frame": per_frame,
-        "seconds_per_frame": seconds,
-    }
+    return report | {"per_frame": per_frame, "seconds_per_frame": seconds}, \
+        [result.mask for result in results]
 
 
-SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
-TRAINING_SCENES = {"unmasked": (), "auto_masks": ("--auto-tool-masks",),
-                   "labels": ("--masks", "{data}", "--mask-pattern", "*_endo_watershed_mask.png",
-                              "--tool-labels", "31,32")}
-"""Import options of the scenes of the training comparison; every run is scored against
-"labels", which is also trained on as the reference of perfect masks."""
-
-
-def train_comparison(data: Path, frame_count: int, iterations: int, seeds: int,
-                     work: Path) -> dict:
-    """Test-frame metrics of deform3dgs trained without masks, with automatic masks and with the
-    labels as masks (each with training seeds 0..seeds-1), all scored against the labelled
-    scene."""
-    scenes = {}
-    for name, options in TRAINING_SCENES.items():
-        scenes[name] = work / f"scene-{name}"
-        subprocess.run(["rm", "-rf", str(scenes[name])], check=True)
-        subprocess.run([*SURGSPLAT, "import", str(data), "--pattern", "*_endo.png",
-                        "--end", str(frame_count), "--scale", "0.5", "--out", str(scenes[name]),
-                        *(option.format(data=data) for option in options)],
-                       check=True, stdout=subprocess.DEVNULL)
-    labelled = load_scene(scenes["labels"])
+def trained_rows(scenes: dict[str, Path], truth: Path, iterations: int, seeds: int,
+                 work: Path) -> dict:
+    """deform3dgs trained on each scene (seeds 0..seeds-1), scored on the test frames of the
+    `truth` scene (same frames, true masks): psnr_tissue and ssim per seed and their means."""
+    labelled = load_scene(truth)
     rows = {}
-    for name in TRAINING_SCENES:
+    for name, scene in scenes.items():
         per_seed = []
         for seed in range(seeds):
             run_dir = work / f"run-{name}-seed{seed}"
             subprocess.run(["rm", "-rf", str(run_dir)], check=True)
-            subprocess.run([*SURGSPLAT, "train", "--method", "deform3dgs", "--data",
-                            str(scenes[name]), "--out", str(run_dir), "--iters", str(iterations),
+            subprocess.run([*SURGSPLAT, "train", "--method", "deform3dgs", "--data", str(scene),
+                            "--out", str(run_dir), "--iters", str(iterations),
                             "--set", f"train.seed={seed}"],
                            check=True, stdout=subprocess.DEVNULL)
             # `surgsplat eval --data` refuses a scene of other content (the masks differ): the
-            # run is scored here on the labelled scene's frames, which are the same images.
+            # run is scored here on the true scene's frames, which are the same images.
             run = dataclasses.replace(load_trained_run(run_dir), scene=labelled)
             metrics = evaluate_run(run, EvalOptions(geometry=False))
             per_seed.append({key: metrics[key] for key in ("psnr_tissue", "ssim")})
         rows[name] = {key: float(np.mean([row[key] for row in per_seed]))
                       for key in ("psnr_tissue", "ssim")}
         rows[name]["per_seed"] = per_seed
+    return rows
+
+
+CHOLEC_IMPORTS = {"unmasked": (), "auto_masks": ("--auto-tool-masks",),
+                  "labels": ("--masks", "{data}", "--mask-pattern", "*_endo_watershed_mask.png",
+                             "--tool-labels", "31,32")}
+"""Import options of the CholecSeg8k scenes of the training comparison; every run is scored
+against "labels", which is also trained on as the reference of perfect masks."""
+
+
+def cholec_training(data: Path, iterations: int, seeds: int, work: Path) -> dict:
+    """The training comparison on the CholecSeg8k clip, imported at half size."""
+    frame_count = len(labelled_frames(data))
+    scenes = {}
+    for name, options in CHOLEC_IMPORTS.items():
+        scenes[name] = work / f"scene-{name}"
+        subprocess.run(["rm", "-rf", str(scenes[name])], check=True)
+        subprocess.run([*SURGSPLAT, "import", str(data), "--pattern", "*_endo.png",
+                        "--end", str(frame_count), "--scale", "0.5", "--out", str(scenes[name]),
+                        *(option.format(data=data) for option in options)],
+                       check=True, stdout=subprocess.DEVNULL)
     return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds,
             "frames": frame_count, "scale": 0.5, "scored_against": "labelled masks",
-            "rows": rows}
+            "rows": trained_rows(scenes, scenes["labels"], iterations, seeds, work)}
+
+
+def phantom_training(phantom: Path, masks: list[np.ndarray], iterations: int, seeds: int,
+                     work: Path) -> dict:
+    """The training comparison on a phantom: its scene without masks/, with `masks` (the
+    segmenter's, bool [H, W] per frame) as masks/, and as it is."""
+    scenes = {"unmasked": work / "phantom-unmasked", "auto_masks": work / "phantom-auto_masks",
+              "labels": phantom}
+    frames = sorted((phantom / IMAGES_DIR).glob("*.png"))
+    for name in ("unmasked", "auto_masks"):
+        subprocess.run(["rm", "-rf", str(scenes[name])], check=True)
+        scenes[name].mkdir(parents=True)
+        for entry in phantom.iterdir():
+            if entry.name != MASKS_DIR:
+                (scenes[name] / entry.name).symlink_to(entry.resolve())
+    (scenes["auto_masks"] / MASKS_DIR).mkdir()
+    for frame, mask in zip(frames, masks):
+        cv2.imwrite(str(scenes["auto_masks"] / MASKS_DIR / frame.name),
+                    mask.astype(np.uint8) * 255)
+    return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds,
+            "frames": len(frames), "scale": 1.0, "scored_against": "true masks",
+            "rows": trained_rows(scenes, phantom, iterations, seeds, work / "phantom-runs")}
+
+
+def phantom_folders(given: list[str], work: Path) -> dict[str, Path]:
+    """NAME=DIR pairs as given, or the default phantoms generated into `work`."""
+    if given:
+        return {name: Path(folder) for name, folder in (pair.split("=", 1) for pair in given)}
+    folders = {}
+    for name, options in PHANTOMS.items():
+        folders[name] = work / name
+        if not (folders[name] / IMAGES_DIR).is_dir():
+            subprocess.run(["rm", "-rf", str(folders[name])], check=True)
+            subprocess.run([*SURGSPLAT, "phantom", "--out", str(folders[name]), *options],
+                           check=True, stdout=subprocess.DEVNULL)
+    return folders
 
 
 def main() -> None:
@@ -172,11 +278,19 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="result file (default "
                         "benchmarks/results/bench_auto_masks-<cpu>-<best ISA>.json)")
     parser.add_argument("--overlays", type=Path, default=None,
-                        help="write every 6th frame with its mask overlaid here")
+                        help="write every 6th frame of each clip with its mask overlaid here")
+    parser.add_argument("--phantoms", nargs="*", default=[], metavar="NAME=DIR",
+                        help="phantom folders to score (default: generate the three of "
+                             "PHANTOMS into --work)")
+    parser.add_argument("--tool-free", type=Path, default=DEFAULT_TOOL_FREE,
+                        help="folder of frames without tools (skipped when absent)")
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
                         help="override AutoMaskConfig fields (for tuning on the tuning split)")
     parser.add_argument("--train-iters", type=int, default=None,
                         help="also compare deform3dgs trained without and with auto masks")
+    parser.add_argument("--train-on", nargs="*", default=["cholecseg8k"],
+                        choices=["cholecseg8k", "phantom"],
+                        help="clips of the training comparison")
     parser.add_argument("--seeds", type=int, default=1,
                         help="training seeds per case; the table shows their mean")
     parser.add_argument("--threads", type=int, default=None,
@@ -193,23 +307,52 @@ def main() -> None:
         for part in path:
             target = getattr(target, part)
         setattr(target, leaf, type(getattr(target, leaf))(value))
-    result = run(args.data, config, args.overlays)
+    args.work.mkdir(parents=True, exist_ok=True)
+    cholec = cholec_clip(args.data)
+    half = len(cholec.images) // 2
+    report, _ = score_clip(cholec, {"tuning": range(half),
+                                    "held_out": range(half, len(cholec.images))},
+                           config, args.overlays)
+    result = {"data": str(args.data), **report, "config": asdict(config), "unseen_clips": {}}
+    phantoms, phantom_masks = phantom_folders(args.phantoms, args.work), {}
+    for name, folder in phantoms.items():
+        clip = phantom_clip(name, folder)
+        report, phantom_masks[name] = score_clip(clip, {"all": range(len(clip.images))},
+                                                 config, args.overlays)
+        result["unseen_clips"][name] = {"data": str(folder), **report}
+    if args.tool_free.is_dir():
+        clip = tool_free_clip(args.tool_free)
+        report, _ = score_clip(clip, {"all": range(len(clip.images))}, config, args.overlays)
+        result["tool_free"] = {"data": str(args.tool_free), **report}
     if args.train_iters:
-        args.work.mkdir(parents=True, exist_ok=True)
-        frame_count = len(labelled_frames(args.data))
-        result["training"] = train_comparison(args.data, frame_count, args.train_iters,
-                                              args.seeds, args.work)
-        for name, row in result["training"]["rows"].items():
-            print(f"deform3dgs {name}: psnr_tissue {row['psnr_tissue']:.2f} dB, "
-                  f"ssim {row['ssim']:.4f}")
+        result["training"] = {}
+        if "cholecseg8k" in args.train_on:
+            result["training"]["cholecseg8k"] = cholec_training(
+                args.data, args.train_iters, args.seeds, args.work)
+        if "phantom" in args.train_on:
+            name = next(iter(phantoms))
+            result["training"][name] = phantom_training(
+                phantoms[name], phantom_masks[name], args.train_iters, args.seeds, args.work)
+        for clip_name, training in result["training"].items():
+            for name, row in training["rows"].items():
+                print(f"{clip_name} deform3dgs {name}: psnr_tissue {row['psnr_tissue']:.2f} dB, "
+                      f"ssim {row['ssim']:.4f}")
     for split in ("tuning", "held_out"):
         row = result[split]
         print(f"{split:9s} frames {result['splits'][split]}: IoU {row['iou']:.3f}  "
               f"precision {row['precision']:.3f}  recall {row['recall']:.3f}  "
               f"lowest frame IoU {row['frame_iou_min']:.3f}")
+    for name, clip_report in result["unseen_clips"].items():
+        row = clip_report["all"]
+        print(f"{name}: IoU {row['iou']:.3f}  precision {row['precision']:.3f}  "
+              f"recall {row['recall']:.3f}  lowest frame IoU {row['frame_iou_min']:.3f}")
+    if "tool_free" in result:
+        print(f"tool-free frames: false alarms on "
+              f"{100 * result['tool_free']['all']['false_alarm_share']:.2f} % of the field of view")
     print(f"{1000 * result['seconds_per_frame']:.0f} ms per frame")
     if not args.set:
         print(f"results: {write_report('bench_auto_masks', result, args.out)}")
+
 
 if __name__ == "__main__":
     main()
