@@ -141,27 +141,37 @@ def outputs_table(report: dict) -> str:
 
 
 def auto_masks_table(report: dict) -> str:
-    """Markdown for one bench_auto_masks report: tool IoU, precision and recall per split, then
-    the training comparison when the report has one."""
+    """Markdown for one bench_auto_masks report: tool IoU, precision and recall per split of
+    the CholecSeg8k clip and per unseen clip, false alarms on tool-free frames, then the
+    training comparison per clip when the report has one."""
     lines = [f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
              f"{report['date'][:10]}, `{report['command']}`:", "",
-             "| frames | IoU | lowest frame IoU | precision | recall | ms per frame |",
-             "|---|---|---|---|---|---|"]
-    for split in ("tuning", "held_out"):
-        first, last = report["splits"][split]
-        row = report[split]
-        lines.append(f"| {split.replace('_', '-')} {first}-{last} | {row['iou']:.3f} "
-                     f"| {cell(row, 'frame_iou_min', '.3f')} "
-                     f"| {row['precision']:.3f} | {row['recall']:.3f} "
-                     f"| {1000 * report['seconds_per_frame']:.0f} |")
-    if "training" in report:
-        training = report["training"]
-        seeds = training.get("seeds", 1)
-        lines += ["", f"| {training['method']}, {training['iterations']} iterations, mean of "
-                      f"{seeds} seed{'s' if seeds > 1 else ''} | psnr_tissue | ssim |",
-                  "|---|---|---|"]
+             "| clip | frames | IoU | lowest frame IoU | precision | recall "
+             "| false alarms (share of view) | ms per frame |",
+             "|---|---|---|---|---|---|---|---|"]
+    clips = [("cholecseg8k", split, report) for split in ("tuning", "held_out")]
+    clips += [(name, "all", clip) for name, clip in report.get("unseen_clips", {}).items()]
+    if "tool_free" in report:
+        clips.append(("SCARED frame, no tool", "all", report["tool_free"]))
+    for name, split, clip in clips:
+        first, last = clip["splits"][split]
+        row = clip[split]
+        frames = f"{split.replace('_', '-')} {first}-{last}" if split != "all" else \
+            f"{first}-{last}"
+        scored = "| {iou:.3f} | {frame_iou_min:.3f} | {precision:.3f} | {recall:.3f} " \
+            if row["tool_pixels"] else "| | | | "  # no tool: only false alarms mean anything
+        lines.append(f"| {name} | {frames} " + scored.format(**row)
+                     + f"| {100 * row['false_alarm_share']:.2f} % "
+                     f"| {1000 * clip['seconds_per_frame']:.0f} |")
+    for clip_name, training in report.get("training", {}).items():
+        seeds = training["seeds"]
+        lines += ["", f"| {clip_name}: {training['method']}, {training['iterations']} "
+                      f"iterations, scale {training['scale']}, mean of {seeds} "
+                      f"seed{'s' if seeds > 1 else ''} | psnr_tissue | seeds | ssim |",
+                  "|---|---|---|---|"]
         for name, row in training["rows"].items():
-            lines.append(f"| {name} | {cell(row, 'psnr_tissue', '.2f')} "
+            per_seed = " / ".join(f"{seed['psnr_tissue']:.2f}" for seed in row["per_seed"])
+            lines.append(f"| {name} | {cell(row, 'psnr_tissue', '.2f')} | {per_seed} "
                          f"| {cell(row, 'ssim', '.4f')} |")
     return "\n".join(lines)
 

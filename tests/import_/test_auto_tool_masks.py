@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks, windowed
+from surgsplat.data.auto_tool_masks import (AutoMaskConfig, auto_tool_masks, snap_to_edges,
+                                            windowed)
 from surgsplat.data.fov_mask import estimate_fov
 from surgsplat.data.importer import ImportConfig, import_scene
 from surgsplat.data.scene import load_scene
@@ -107,6 +108,19 @@ def test_wide_smooth_shaft_is_found_whole(surround_px: int, found: bool):
     scores = [iou(result.mask, truth) for result, truth
               in zip(auto_tool_masks(frames, None, config), truths)]
     assert (min(scores) > 0.8) == found, scores
+
+
+def test_mask_upsampled_to_the_frame_moves_onto_its_edges():
+    """A tool whose edge lies at column 101 of a 200-wide frame, decided at half size with the
+    edge a working pixel early (column 98 once upsampled): the guided filter moves the edge
+    towards the frame's edge; without it (edge_radius 0) it stays where upsampling put it."""
+    guide = np.full((60, 200), 0.7, np.float32)
+    guide[:, 101:] = 0.3  # a dark instrument on the right
+    coarse = np.zeros((30, 100), bool)
+    coarse[:, 49:] = True
+    for radius, first_column in ((2.0, 99), (0.0, 98)):
+        mask = snap_to_edges(coarse, guide, AutoMaskConfig(edge_radius=radius))
+        assert mask[:, first_column:].all() and not mask[:, :first_column].any(), radius
 
 
 def test_highlights_on_dark_tissue_are_not_tool():
