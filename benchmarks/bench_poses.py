@@ -28,10 +28,15 @@ weight --prior). The copy's world is SfM's (the first frame's camera), not the p
 only the metrics in the camera's frame are compared: psnr_tissue and depth_rmse_mm.
 
 With --clip-train-iters N, `deform3dgs` (N iterations, seeds 0..S-1) is trained on the
-CholecSeg8k clip twice: on its static import (one fixed camera) and on its SfM import (no depth:
-the scale is the convention's, and the sparse points initialise the Gaussians). psnr_tissue is
-over the test frames' tissue pixels by the clip's labels; with --videos DIR each seed-0 run's
-side-by-side video (`surgsplat render`) is written to DIR/<case>/.
+CholecSeg8k clip, one run per case of --clip-cases (default all of CLIP_CASES): on its static
+import (one fixed camera) and on its SfM import (no depth: the scale is the convention's, and
+the sparse points initialise the Gaussians), each as imported, and on the SfM import with
+`camera_refine`, whose test frames' poses are fitted to their own pixels at evaluation (the
+pose-free protocol); and, to tell that protocol's share from the poses', each import with only
+that test-time fitting (`camera_refine` at a negligible training rate). psnr_tissue is over the
+test frames' tissue pixels by the clip's labels; with --videos DIR each seed-0 run's
+side-by-side video (`surgsplat render`) is written to DIR/<case>/. With --merge, the clip's rows
+are merged into the results file's clip_training by case.
 
 Each import runs in its own process; seconds are its wall time and CPU seconds (user + system,
 both threads) from the operating system, and the SfM stages' wall time from scene.json. The
@@ -173,14 +178,24 @@ def sfm_scene_with_depth(phantom: Path, out: Path) -> dict:
             "scale_source": poses.scale_source, "seconds": poses.seconds}
 
 
+REFINE = ("--set", "components.camera_refine.kind=camera_refine")
+TEST_TIME_ONLY = (*REFINE, "--set", "components.camera_refine.lr=1e-12",
+                  "--set", "components.camera_refine.lr_final=1e-12")
+CLIP_CASES = {"static": ("static", ()), "sfm": ("sfm", ()),
+              "sfm_refined": ("sfm", REFINE),
+              "static_test_time_poses": ("static", TEST_TIME_ONLY),
+              "sfm_test_time_poses": ("sfm", TEST_TIME_ONLY)}
+"""Clip training cases: (import, extra train options); the camera_refine cases also take the
+pose prior's weight."""
+
+
 def training_case(phantom: Path, work: Path, iterations: int, seeds: int, prior: float
                   ) -> dict:
     """deform3dgs on the phantom's true poses, on SfM's, and on SfM's with camera_refine:
     psnr_tissue and depth_rmse_mm per seed and their means."""
     sfm_dir = work / "phantom-sfm-depth"
     sfm = sfm_scene_with_depth(phantom, sfm_dir)
-    refine = ["--set", "components.camera_refine.kind=camera_refine",
-              "--set", f"losses.pose_prior.weight={prior}"]
+    refine = [*REFINE, "--set", f"losses.pose_prior.weight={prior}"]
     cases = {"true_poses": (phantom, []), "sfm_poses": (sfm_dir, []),
              "sfm_poses_refined": (sfm_dir, refine)}
     rows = trained_rows(cases, work, "", iterations, seeds, ("psnr_tissue", "depth_rmse_mm"))
@@ -215,18 +230,23 @@ def trained_rows(cases: dict[str, tuple[Path, list[str]]], work: Path, prefix: s
     return rows
 
 
-def clip_training_case(work: Path, iterations: int, seeds: int, videos: Path | None) -> dict:
-    """deform3dgs on the clip's static import and on its SfM import (both made by
-    `cholec_case` in `work`): psnr_tissue and ssim per seed and their means; the seed-0 runs'
-    side-by-side videos into `videos`."""
-    cases = {name: (work / f"cholec-{name}", []) for name in ("static", "sfm")}
-    for scene, _ in cases.values():
-        if not (scene / POSES_FILE).is_file():
-            raise SystemExit(f"{scene}: no import there; run without --train-only first")
+def clip_training_case(work: Path, iterations: int, seeds: int, videos: Path | None,
+                       names: list[str], prior: float) -> dict:
+    """deform3dgs on the clip's imports (made by `cholec_case` in `work`) in the CLIP_CASES
+    `names`: psnr_tissue and ssim per seed and their means; the seed-0 runs' side-by-side
+    videos into `videos`."""
+    cases = {}
+    for name in names:
+        scene, options = CLIP_CASES[name]
+        if not (work / f"cholec-{scene}" / POSES_FILE).is_file():
+            raise SystemExit(f"{work / f'cholec-{scene}'}: no import there; run without "
+                             "--train-only first")
+        prior_option = ("--set", f"losses.pose_prior.weight={prior}") if options else ()
+        cases[name] = (work / f"cholec-{scene}", [*options, *prior_option])
     rows = trained_rows(cases, work, "cholec-", iterations, seeds, ("psnr_tissue", "ssim"),
                         videos)
-    return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds, "rows": rows,
-            "psnr_tissue_gain": rows["sfm"]["psnr_tissue"] - rows["static"]["psnr_tissue"]}
+    return {"method": "deform3dgs", "iterations": iterations, "seeds": seeds,
+            "pose_prior_weight": prior, "rows": rows}
 
 
 def plot_trajectory(estimated: np.ndarray, world: np.ndarray, tissue: np.ndarray,
@@ -275,6 +295,8 @@ def main() -> None:
     parser.add_argument("--prior", type=float, default=0.1, help="pose_prior weight")
     parser.add_argument("--clip-train-iters", type=int, help="also train deform3dgs on the "
                         "clip's static and SfM imports for this many iterations")
+    parser.add_argument("--clip-cases", nargs="*", choices=list(CLIP_CASES),
+                        default=list(CLIP_CASES), help="clip training cases")
     parser.add_argument("--videos", type=Path, help="folder for the clip runs' videos")
     parser.add_argument("--train-only", action="store_true",
                         help="only the training comparisons (no imports: those in --work)")
@@ -300,12 +322,20 @@ def main() -> None:
                                            args.prior)
     if args.clip_train_iters:
         result["clip_training"] = clip_training_case(args.work, args.clip_train_iters,
-                                                     args.seeds, args.videos)
+                                                     args.seeds, args.videos, args.clip_cases,
+                                                     args.prior)
     print(json.dumps(result, indent=2))
     out = args.out or results_path("bench_poses", system_info())
     if args.merge and out.is_file():
         previous = json.loads(out.read_text())
         commands = previous.get("commands", [previous["command"]])
+        clip = previous.get("clip_training")
+        if clip is not None and "clip_training" in result:
+            same = all(clip[key] == result["clip_training"][key]
+                       for key in ("method", "iterations", "seeds"))
+            if same:  # the rows measured before, with this run's rows put in
+                result["clip_training"]["rows"] = (clip["rows"]
+                                                   | result["clip_training"]["rows"])
         result = {key: value for key, value in previous.items()
                   if key in SECTIONS and key not in result} | result
         result["commands"] = commands + [" ".join(["python", "benchmarks/bench_poses.py",

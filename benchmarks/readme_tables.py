@@ -256,7 +256,12 @@ def poses_table(report: dict) -> str:
         lines += ["", f"| {clip['method']}, {clip['iterations']} iterations, {clip['seeds']} "
                       "seed(s), CholecSeg8k clip | psnr_tissue | ssim | train CPU s |",
                   "|---|---|---|---|"]
-        labels = {"static": "static camera (every pose the first)", "sfm": "SfM poses"}
+        prior = clip.get("pose_prior_weight")
+        labels = {"static": "static camera (every pose the first)", "sfm": "SfM poses",
+                  "sfm_refined": f"SfM poses + camera_refine (prior {prior}), test poses "
+                                 "fitted at evaluation",
+                  "static_test_time_poses": "static camera, test poses fitted at evaluation",
+                  "sfm_test_time_poses": "SfM poses, test poses fitted at evaluation"}
         for name, row in clip["rows"].items():
             lines.append(f"| {labels[name]} | {row['psnr_tissue']:.2f} | {row['ssim']:.3f} "
                          f"| {row['train_cpu_seconds']:.0f} |")
