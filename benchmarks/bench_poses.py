@@ -307,7 +307,7 @@ def main() -> None:
         SURGSPLAT.extend(["--threads", str(args.threads)])
     args.work.mkdir(parents=True, exist_ok=True)
     phantom = args.phantom
-    if phantom is None:
+    if phantom is None and (args.train_iters or not args.train_only):
         phantom = args.work / f"phantom-{args.preset}-moving"
         shutil.rmtree(phantom, ignore_errors=True)
         subprocess.run([*SURGSPLAT, "phantom", "--out", str(phantom), "--preset", args.preset,
