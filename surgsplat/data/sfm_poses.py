@@ -50,8 +50,10 @@ INIT_ANGLE_DEG = 1.0
 the mapper when no pair has it)."""
 INIT_TRIALS = 50
 """Initial image pairs the mapper tries before it relaxes its thresholds (COLMAP: 200)."""
-LOG_LEVEL = 2
-"""COLMAP's log level while it runs: errors only (glog: 0 = info, 1 = warning, 2 = error)."""
+LOG_LEVEL = 3
+"""COLMAP's log level while it runs: fatal only (glog: 0 = info, 1 = warning, 2 = error,
+3 = fatal). Its errors ("Failed to create any sparse model") are what surgsplat reports in its
+own one line, with the way out."""
 SCALE_SOURCES = ("depth", "convention")
 """How the SfM scale was set: from metric depth, or by the median-depth convention."""
 

@@ -121,3 +121,25 @@ def test_interpolation_between_and_beyond_the_known_poses():
     assert np.allclose(halfway, [0.0, 20.0, 0.0])
     assert np.allclose(result[:2], camera_to_world[2])  # before the first: the first known
     assert np.allclose(result[5], camera_to_world[4])  # after the last: the last known
+
+
+def test_a_clip_sfm_cannot_register_is_one_error_line_and_leaves_nothing(tmp_path: Path, cli,
+                                                                         one_error_line):
+    """Textureless frames (smooth shading, sensor noise): no features match, COLMAP registers
+    no pair. The import stops with one line naming the cause and the way out, the frames are
+    untouched and no half-written scene is left at --out."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    ys, xs = np.mgrid[0:128, 0:160]
+    shading = 120 + 40 * np.cos(xs / 160.0) * np.cos(ys / 128.0)
+    for index in range(6):
+        noise = cv2.GaussianBlur(rng.normal(0, 1.0, (128, 160)), (0, 0), 3)
+        grey = np.clip(shading + noise, 0, 255).astype(np.uint8)
+        cv2.imwrite(str(frames / f"{index:03d}.png"), cv2.merge([grey // 2, grey // 2, grey]))
+    before = {path.name: path.read_bytes() for path in frames.iterdir()}
+    out = tmp_path / "scene"
+    result = cli("import", str(frames), "--out", str(out), "--poses", "sfm", process=True)
+    assert "COLMAP registered fewer than 2 of the 6 frames" in one_error_line(result)
+    assert {path.name: path.read_bytes() for path in frames.iterdir()} == before
+    assert not out.exists() or not any(out.iterdir())
