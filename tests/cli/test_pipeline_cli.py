@@ -3,7 +3,10 @@ meets on the way (existing run without --resume, resume without a checkpoint, un
 
 import json
 
+import pytest
 
+
+@pytest.mark.slow  # the whole pipeline through the CLI, 22 s: the fast tier stays under 90 s
 def test_train_eval_render(small_phantom, tmp_path, cli, one_error_line):
     run = tmp_path / "run"
     trained = cli("train", "--method", "deform3dgs", "--data", str(small_phantom), "--out", str(run),
