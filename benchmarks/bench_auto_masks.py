@@ -23,9 +23,9 @@ alarm: its share of the field of view.
 
 With --train-iters, each clip of --train-on (cholecseg8k, phantom) is also trained three times:
 without masks, with the automatic masks and with the true masks (the reference of perfect
-masks). The clip is imported at half size (CholecSeg8k: `import` without masks, with
---auto-tool-masks and with the labels; a phantom: its own scene without masks/, with the
-segmenter's masks written into masks/, and as it is). `deform3dgs` is trained for N iterations
+masks). CholecSeg8k is imported at half size, without masks, with --auto-tool-masks and with
+the labels; the first phantom is trained at its full size, as its own scene without masks/,
+with the segmenter's masks written into masks/, and as it is. `deform3dgs` is trained for N iterations
 on each (once per training seed 0..S-1; the mean is reported), and every run is scored on the
 test frames against the true masks' scene, so that all are scored over the same, truly
 tool-free pixels.
@@ -261,6 +261,8 @@ def phantom_training(phantom: Path, masks: list[np.ndarray], iterations: int, se
 def phantom_folders(given: list[str], work: Path) -> dict[str, Path]:
     """NAME=DIR pairs as given, or the default phantoms generated into `work`."""
     if given:
+        if not all("=" in pair for pair in given):
+            raise SystemExit(f"--phantoms: expected NAME=DIR pairs, got {' '.join(given)}")
         return {name: Path(folder) for name, folder in (pair.split("=", 1) for pair in given)}
     folders = {}
     for name, options in PHANTOMS.items():
