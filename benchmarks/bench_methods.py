@@ -305,6 +305,26 @@ SURGSPLAT_TARGETS = (
 )
 
 
+COARSE_TO_FINE = ("train.coarse_fraction=0.3", "train.coarse_factor=4")
+"""The coarse-to-fine lever: the first 30 % of the run on frames at 1/4, then 1/2 of the size."""
+SPEED_CASES = (
+    Case("deform3dgs", "deform3dgs", "pulling"),
+    Case("deform3dgs-coarse-to-fine", "deform3dgs", "pulling", COARSE_TO_FINE),
+    Case("deform3dgs-2000", "deform3dgs", "pulling", ("train.iterations=2000",)),
+    Case("deform3dgs-1500", "deform3dgs", "pulling", ("train.iterations=1500",)),
+    Case("deform3dgs-1500-coarse-to-fine", "deform3dgs", "pulling",
+         ("train.iterations=1500", *COARSE_TO_FINE)),
+)
+"""Issue 52's levers, each an A/B against the preset as it is, at full length."""
+HEXPLANE_FAST = ("components.deformation.grid_lr=0.016", "components.deformation.mlp_lr=0.0016")
+"""HexPlane's planes and MLP at 10x the rates of 4DGS' 14000-iteration schedule."""
+SPEED_CASES += (
+    Case("endogaussian", "endogaussian", "pulling", base="deform3dgs"),
+    Case("endogaussian-fast-hexplane", "endogaussian", "pulling", HEXPLANE_FAST,
+         base="endogaussian"),
+)
+
+
 SUITES = {
     "fidelity": Suite(
         cases=FIDELITY_CASES,
@@ -390,6 +410,10 @@ SUITES = {
                  "reflectance_error_ratio", "r_var", "r_var_ratio", "shading_error"),
         baseline="deform3dgs-hivar", ratio_metrics=("reflectance_error", "r_var"),
         baseline_by_phantom=True),
+    "speed": Suite(cases=SPEED_CASES,
+                   metrics=("psnr_tissue", "psnr_tissue_gain", "depth_rmse_mm",
+                            "normal_error_deg_median"),
+                   baseline="deform3dgs", baseline_by_phantom=False),
     "physiosplat": Suite(
         cases=(
             Case("deform3dgs", "deform3dgs", "pulling"),

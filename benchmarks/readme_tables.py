@@ -411,8 +411,48 @@ def onnx_models_table(report: dict) -> str:
 
 
 def train_table(report: dict) -> str:
-    """Markdown for one bench_train report: one row per training run, then issue 10's targets
-    beside what was measured."""
+    """Markdown for one bench_train report: one row per case (times raw and scaled to the
+    reference probe), then issue 52's targets, then the plot of the curves. Reports of issue
+    10's format (before `threads`) go to train_table_issue10."""
+    if "threads" not in report:
+        return train_table_issue10(report)
+    system = report["system"]
+    lines = [
+        f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}, "
+        f"--threads {report['threads']}), {report['date'][:10]}, `{report['command']}`; scaled "
+        f"= seconds x this case's probe / {report['reference_probe_evals_per_s']:.2g} "
+        "evaluations per second:",
+        "",
+        "| scene | preset | iterations | final psnr_tissue | s to -1 dB | scaled | s to -0.3 dB "
+        "| scaled | wall s scaled | s/iter | Gaussians | render FPS |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["rows"]:
+        settings = "".join(f" `{setting}`" for setting in row["settings"])
+        lines.append(
+            f"| {row['scene']} | {row['preset']}{settings} | {row['iterations']} "
+            f"| {cell(row, 'test_psnr_tissue', '.2f')} "
+            f"| {cell(row, 'seconds_to_minus_1db', '.0f')} "
+            f"| {cell(row, 'seconds_to_minus_1db_scaled', '.0f')} "
+            f"| {cell(row, 'seconds_to_minus_0p3db', '.0f')} "
+            f"| {cell(row, 'seconds_to_minus_0p3db_scaled', '.0f')} "
+            f"| {cell(row, 'wall_seconds_scaled', '.0f')} "
+            f"| {cell(row, 'seconds_per_iter', '.3f')} | {row['num_gaussians']} "
+            f"| {cell(row, 'render_fps', '.1f')} |")
+    lines += ["", "| target | measured | bound | met |", "|---|---|---|---|"]
+    for target in report["targets"]:
+        measured = "not reached" if target["value"] is None else f"{target['value']:.0f}"
+        lines.append(f"| {target['rule']} | {measured} | <= {target['bound']:.0f} "
+                     f"| {'yes' if target['met'] else '**no**'} |")
+    lines += ["", f"![test psnr_tissue against scaled training seconds]"
+                  f"(benchmarks/results/{report['plot']})"]
+    return "\n".join(lines)
+
+
+def train_table_issue10(report: dict) -> str:
+    """Markdown for one bench_train report of issue 10's format (no `threads`: a wall budget,
+    seconds to 35 and 39 dB): one row per training run, then its targets beside what was
+    measured."""
     system = report["system"]
     lines = [
         f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}), "

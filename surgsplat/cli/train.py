@@ -37,9 +37,9 @@ def train_with_progress(config: MethodConfig, data: Path | None, out: Path, resu
                             total=trainer.config.train.iterations, completed=trainer.iteration,
                             loss=0.0, psnr=0.0, gaussians=0)
 
-        def report(stats: StepStats) -> None:
-            bar.update(task, completed=stats.iteration, loss=stats.loss, psnr=stats.psnr,
-                       gaussians=stats.num_gaussians)
+        def report(stats: StepStats) -> None:  # a budgeted run re-plans its length
+            bar.update(task, completed=stats.iteration, total=trainer.config.train.iterations,
+                       loss=stats.loss, psnr=stats.psnr, gaussians=stats.num_gaussians)
 
         fit(trainer, report)
     console.print(f"trained {trainer.iteration} iterations in {trainer.elapsed:.0f} s; "
@@ -71,6 +71,10 @@ def train_command(
     out: Annotated[Path, typer.Option(help="Run folder to write.")] = Path("runs/latest"),
     iters: Annotated[int | None, typer.Option(help="Number of iterations (preset default if "
                                                      "omitted).")] = None,
+    budget: Annotated[float | None, typer.Option(
+        help="Train for this many seconds instead of a number of iterations: the schedule is "
+             "scaled to fit, so every stage still runs (train.budget_seconds).",
+        min=0.001)] = None,
     resume: Annotated[bool, typer.Option(help="Continue the run in --out from its checkpoint.")] = False,
     config: Annotated[Path | None, typer.Option(
         "--config", help="JSON or TOML file of settings, e.g. a run's config.json to reproduce "
@@ -81,9 +85,9 @@ def train_command(
 ) -> None:
     """Train a deforming-Gaussian reconstruction of a scene."""
     if resume:
-        if config is not None or set_:
-            raise SurgsplatError("--config and --set change a new run; a resumed run keeps its "
-                                 "saved config (only --iters may extend it)")
+        if config is not None or set_ or budget is not None:
+            raise SurgsplatError("--config, --set and --budget change a new run; a resumed run "
+                                 "keeps its saved config (only --iters may extend it)")
         if not out.is_dir():
             raise SurgsplatError(f"{out / CHECKPOINT}: nothing to resume (no run folder {out})")
         with run_lock(out):
@@ -96,7 +100,11 @@ def train_command(
                                      "not apply to it")
             train_with_progress(saved, data, out, resume, iters)
         return
+    if budget is not None and iters is not None:
+        raise SurgsplatError("--budget and --iters each set the run's length: give one")
     new_config = build_method_config(method, config, set_ or [])
+    if budget is not None:
+        new_config.train.budget_seconds = budget
     if data is None:
         raise SurgsplatError("--data is required unless --resume continues a run")
     check_new_run_folder(out)

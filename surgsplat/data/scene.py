@@ -164,6 +164,40 @@ class Frame:
         frame._held, frame._store = self._held, self._store
         return frame
 
+    def downscaled(self, factor: int) -> "Frame":
+        """This frame at 1/`factor` of its size in each direction (the frame itself for 1): each
+        pixel is a `factor` x `factor` block of this one's (a remainder row or column dropped).
+        Colour is the block's mean; depth the mean of the block's pixels with depth (0 where
+        none has); a block is tool when any of its pixels is, inside the field of view when all
+        are, so that no tool pixel is ever counted as tissue. The camera sees the same view: its
+        focal lengths and principal point are divided by `factor` (pixel centres stay at
+        +0.5). The new frame holds its pixels."""
+        if factor == 1:
+            return self
+        if factor < 1:
+            raise ValueError(f"a downscale factor is an integer >= 1, got {factor}")
+        height, width = self.camera.height // factor, self.camera.width // factor
+        if min(height, width) < MIN_SIZE:
+            raise SurgsplatError(f"frame {self.index} at 1/{factor} size would be {width}x"
+                                 f"{height}, under the {MIN_SIZE}x{MIN_SIZE} minimum")
+
+        def blocks(plane: Tensor) -> Tensor:  # [H, W, ...] -> [h, w, ..., factor * factor]
+            cropped = plane[:height * factor, :width * factor]
+            split = cropped.reshape(height, factor, width, factor, *plane.shape[2:])
+            return split.movedim(1, -1).movedim(2, -1).flatten(-2)
+
+        image = blocks(self.image).mean(dim=-1)
+        depth = None
+        if self.depth is not None:
+            depth_blocks = blocks(self.depth)
+            valid = (depth_blocks > 0).sum(dim=-1)
+            depth = depth_blocks.clamp_min(0).sum(dim=-1) / valid.clamp_min(1)
+        scale = torch.tensor([1.0 / factor, 1.0 / factor, 1.0], dtype=self.camera.K.dtype)
+        camera = Camera(K=self.camera.K * scale[:, None], world_to_camera=self.camera.world_to_camera,
+                        width=width, height=height)
+        return Frame(self.index, self.time, image.contiguous(), depth, self.is_test, camera,
+                     blocks(self.tool).any(dim=-1), blocks(self.fov).all(dim=-1))
+
     def prefetch(self) -> None:
         """Say that this frame is needed soon: its files start decoding in the background
         (nothing to do for a frame whose pixels are held or cached)."""

@@ -96,6 +96,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
         metrics.update(family.unavailable())
     metrics["fps"] = len(frames) / render_seconds if render_seconds > 0 else None
     metrics["train_seconds"] = run.train_seconds
+    metrics["budget_seconds"] = run.config.train.budget_seconds or None  # None: trained to --iters
     metrics["num_gaussians"] = run.model.gaussians.num_gaussians
     metrics["peak_rss_mb"] = run.peak_rss_mb
     metrics["conventions"] = {key: text for family in families

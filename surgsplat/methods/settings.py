@@ -50,6 +50,25 @@ class TrainConfig:
     tool_mask_offset_px: int = field(default=0, metadata={"range": "[-100, 100]"})
     """Grow (> 0) or shrink (< 0) the training frames' tool masks by this many pixels before
     training: a mask-robustness test (PhysioSplat's +-10 px); eval scores with the true masks."""
+    budget_seconds: float = field(default=0.0, metadata={"range": "[0, inf)"})
+    """Train for this many seconds of training steps instead of a fixed count (0 = exactly
+    `iterations` steps): `iterations` is then re-planned as the run goes, from the measured
+    time per step, so that every stage of the schedule, written as fractions of the run, still
+    runs. Scene loading, set-up and checkpoint writes are not counted."""
+    coarse_fraction: float = field(default=0.0, metadata={"range": "[0, 1)"})
+    """Fraction of the run trained on downscaled frames, coarse to fine (0 = every step at full
+    size): the first stage at 1/coarse_factor of the size, each next one at twice the previous
+    size, the stages sharing this fraction equally; full size after it."""
+    coarse_factor: int = field(default=1, metadata={"range": "[1, 16]"})
+    """Downscale factor of the first coarse stage: 1 (no coarse stage), 2, 4, 8 or 16."""
+
+    def downscale_at(self, iteration: int) -> int:
+        """The factor frames are downscaled by at `iteration` (counted from 1) of this run."""
+        stages = self.coarse_factor.bit_length() - 1  # factors coarse_factor, ..., 2
+        progress = (iteration - 1) / self.iterations
+        if stages == 0 or progress >= self.coarse_fraction:
+            return 1
+        return self.coarse_factor >> int(progress * stages / self.coarse_fraction)
 
 
 @dataclass

@@ -33,11 +33,16 @@ class DensifyStrategy:
         self.config = config
         self.scene_extent = scene_extent
         self.max_gaussians = max_gaussians
-        self.first, self.last = config.window(iterations)
-        self.reset_period = config.reset_period(iterations)
+        self.reschedule(iterations)
         self.grad_sum = torch.zeros(0)
         self.visible_count = torch.zeros(0)
         self.max_radius = torch.zeros(0)
+
+    def reschedule(self, iterations: int) -> None:
+        """Refer the schedule's fractions to a run of `iterations` steps (a run trained to a
+        time budget changes its length as it goes)."""
+        self.first, self.last = self.config.window(iterations)
+        self.reset_period = self.config.reset_period(iterations)
 
     def state_dict(self) -> dict[str, Tensor | float]:
         return {"grad_sum": self.grad_sum, "visible_count": self.visible_count,

@@ -18,7 +18,8 @@ import resource
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -27,7 +28,7 @@ import torch
 from torch import Tensor
 
 from surgsplat.atomic import write_text_atomic
-from surgsplat.data.scene import Frame, Scene
+from surgsplat.data.scene import MIN_SIZE, Frame, Scene
 from surgsplat.data.tool_masks import offset_tool_masks
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig, to_dict
@@ -51,6 +52,8 @@ LOG_FILE = "train_log.jsonl"
 LOG_EVERY = 10
 PREFETCH_FRAMES = 3
 """Training frames decoded ahead in the background: the next ones of the sampling order."""
+BUDGET_WINDOW = 50
+"""Steps whose mean time a run trained to a time budget plans its remaining steps with."""
 
 
 class TrainingDiverged(SurgsplatError):
@@ -204,12 +207,22 @@ class Trainer:
                                               *declared_per_gaussian(context, components))
         self.model = SplatModel(gaussians, components)
         check_loss_weights(self.config.losses, self.model.loss_terms())
+        factor = self.config.train.coarse_factor
+        if factor & (factor - 1):
+            raise SurgsplatError(f"train.coarse_factor: {factor} is not a power of 2 (1, 2, 4, "
+                                 "8 or 16)")
+        if factor > 1 and min(info.width, info.height) // factor < MIN_SIZE:
+            raise SurgsplatError(f"train.coarse_factor: {factor} would downscale the "
+                                 f"{info.width}x{info.height} frames under {MIN_SIZE}x{MIN_SIZE} "
+                                 "pixels; use a smaller factor")
         self.optimizer, self.schedules = self._build_optimizer()
         budget = self.config.gaussians.cap(info.width, info.height)
         self.strategy = DensifyStrategy(self.config.densify, self.scene_extent, budget,
                                         self.config.train.iterations)
         self.frame_generator = torch.Generator().manual_seed(self.config.train.seed)
         self._frame_queue: list[int] = []
+        self._downscaled: dict[int, Frame] = {}  # frame index -> the frame at the current factor
+        self._downscale_factor = 1
         self.background = torch.tensor(self.config.train.background, dtype=torch.float32)
 
     # ---- optimiser ----
@@ -259,12 +272,26 @@ class Trainer:
             frames[upcoming].prefetch()
         return frame
 
+    def _at_step_size(self, frame: Frame) -> Frame:
+        """`frame` at this step's size (`TrainConfig.downscale_at`); the downscaled frames of
+        one factor are kept until the factor changes."""
+        factor = self.config.train.downscale_at(self.iteration)
+        if factor != self._downscale_factor:
+            self._downscaled.clear()
+            self._downscale_factor = factor
+        if factor == 1:
+            return frame
+        if frame.index not in self._downscaled:
+            self._downscaled[frame.index] = frame.downscaled(factor)
+        return self._downscaled[frame.index]
+
     def step(self) -> StepStats:
-        """One optimisation step on one random training frame."""
+        """One optimisation step on one random training frame (downscaled in the run's coarse
+        stages)."""
         started = time.perf_counter()
         self.iteration += 1
         self._update_learning_rates()
-        frame = self._next_frame()
+        frame = self._at_step_size(self._next_frame())
         iterations = self.config.train.iterations
         weights = {name: w.weight for name, w in self.config.losses.items()
                    if w.active_at(self.iteration, iterations)}
@@ -299,7 +326,8 @@ class Trainer:
         if densifying:
             self.strategy.step_post_backward(self.iteration, self.model.gaussians,
                                              self.optimizer, screen_grad,
-                                             output.projection.radii.detach(),
+                                             output.projection.radii.detach()
+                                             * self._downscale_factor,  # full-size pixels
                                              self.model.opacity_factor)
         self.model.after_step(self.iteration)
         self.elapsed += time.perf_counter() - started
@@ -311,6 +339,22 @@ class Trainer:
                          self.model.gaussians.num_gaussians, self.elapsed,
                          {name: float(value.detach()) for name, value in terms.items()})
 
+    # ---- a time budget ----
+    def plan_to_budget(self, recent_step_seconds: Sequence[float]) -> None:
+        """With train.budget_seconds, set train.iterations (and the densification schedule) to
+        the steps done plus the steps the rest of the budget holds at the mean time of
+        `recent_step_seconds`: the run ends at the budget with every stage of its schedule, as
+        fractions of the run, re-referred to the new length. Nothing without a budget."""
+        train = self.config.train
+        if train.budget_seconds <= 0 or not recent_step_seconds:
+            return
+        seconds_per_step = sum(recent_step_seconds) / len(recent_step_seconds)
+        remaining = max(train.budget_seconds - self.elapsed, 0.0)
+        planned = self.iteration + int(remaining / seconds_per_step)
+        if planned != train.iterations:
+            train.iterations = planned
+            self.strategy.reschedule(planned)
+
     # ---- the run ----
     def fit(self, on_step: Callable[[StepStats], None] | None = None) -> None:
         """Train to config.train.iterations; Ctrl-C saves a checkpoint and re-raises; a loss or a
@@ -320,10 +364,14 @@ class Trainer:
         log = open(self.run_dir / LOG_FILE, "a", buffering=1)  # line-buffered: a crash keeps the log
         train = self.config.train
         last_save, saved_at = time.monotonic(), self.iteration
+        recent: deque[float] = deque(maxlen=BUDGET_WINDOW)  # seconds of the latest steps
         try:
             with stops_between_steps() as stop_requested:
                 while self.iteration < train.iterations:
+                    before = self.elapsed
                     stats = self.step()
+                    recent.append(self.elapsed - before)
+                    self.plan_to_budget(recent)
                     if on_step:
                         on_step(stats)
                     if stats.iteration % LOG_EVERY == 0 or stats.iteration == train.iterations:
@@ -336,6 +384,8 @@ class Trainer:
                         raise KeyboardInterrupt
             if saved_at != self.iteration or not (self.run_dir / CHECKPOINT).is_file():
                 self.save()
+            if train.budget_seconds > 0:  # config.json says how long the run turned out
+                self.write_run_files()
         except KeyboardInterrupt:
             self.save()
             raise
