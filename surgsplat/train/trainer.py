@@ -298,7 +298,10 @@ class Trainer:
         when = FrameTime(frame.index, frame.time, losses=frozenset(weights),
                          tool_pixels=frame.tool)
         camera = self.model.camera_at(frame.camera, when)
-        densifying = self.strategy.gathers_statistics(self.iteration)
+        # densification's statistics come from full-size steps only: a coarse step's screen
+        # gradients and radii are of blocks, not of the pixels the thresholds are set for
+        densifying = (self.strategy.gathers_statistics(self.iteration)
+                      and self._downscale_factor == 1)
         absgrad = torch.zeros(self.model.gaussians.num_gaussians) if densifying else None
         try:
             output, state = self.model.render(camera, when, self.background, absgrad=absgrad)
@@ -326,8 +329,7 @@ class Trainer:
         if densifying:
             self.strategy.step_post_backward(self.iteration, self.model.gaussians,
                                              self.optimizer, screen_grad,
-                                             output.projection.radii.detach()
-                                             * self._downscale_factor,  # full-size pixels
+                                             output.projection.radii.detach(),
                                              self.model.opacity_factor)
         self.model.after_step(self.iteration)
         self.elapsed += time.perf_counter() - started

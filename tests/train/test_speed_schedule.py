@@ -10,9 +10,11 @@ import torch
 
 from surgsplat.data.scene import Camera, Frame, load_scene
 from surgsplat.errors import SurgsplatError
+from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.methods.registry import method_config
 from surgsplat.methods.settings import TrainConfig
 from surgsplat.render.render import render
+from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import CONFIG_FILE, Trainer
 
 
@@ -108,13 +110,17 @@ def test_coarse_to_fine_training_renders_each_stage_at_its_size(small_phantom, t
     config.train.iterations = 12
     config.init.max_points = 2000
     config.train.coarse_fraction, config.train.coarse_factor = 0.5, 4
+    config.densify.start = 0.0
     trainer = Trainer(config, load_scene(small_phantom), tmp_path / "run")
-    sizes = []
+    sizes, gathered = [], []
     for _ in range(12):
         trainer.step()
         sizes.append(trainer._downscale_factor)
+        gathered.append(float(trainer.strategy.visible_count.sum()))
     assert sizes == [4, 4, 4, 2, 2, 2, 1, 1, 1, 1, 1, 1]
     assert not trainer._downscaled  # nothing held once at full size
+    # densification's statistics come from the full-size steps only
+    assert gathered[:6] == [0.0] * 6 and 0 < gathered[6] < gathered[7]  # window ends at 8
 
 
 def test_a_budgeted_run_ends_at_its_budget_with_its_length_recorded(small_phantom, tmp_path):
@@ -131,6 +137,17 @@ def test_a_budgeted_run_ends_at_its_budget_with_its_length_recorded(small_phanto
     # the densification window was re-referred to the run's length
     first, last = trainer.config.densify.window(trainer.iteration)
     assert (trainer.strategy.first, trainer.strategy.last) == (first, last)
+    metrics = evaluate_run(load_trained_run(tmp_path / "run"), EvalOptions(geometry=False))
+    assert metrics["budget_seconds"] == 3.0 and metrics["iteration"] == trainer.iteration
+
+
+def test_a_run_to_a_number_of_iterations_states_no_budget(small_phantom, tmp_path):
+    config = method_config("deform3dgs")
+    config.init.max_points = 2000
+    config.train.iterations = 5
+    Trainer(config, load_scene(small_phantom), tmp_path / "run").fit()
+    metrics = evaluate_run(load_trained_run(tmp_path / "run"), EvalOptions(geometry=False))
+    assert metrics["budget_seconds"] is None and metrics["iteration"] == 5
 
 
 def test_budget_and_iters_are_refused_together(cli, small_phantom, tmp_path, one_error_line):
