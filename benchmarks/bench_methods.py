@@ -60,6 +60,11 @@ Suite `drawer` (issue 16): deform3dgs, endogsg and drawer (endogsg's components 
 anchored on the SDF's mesh, plus PhysioSplat's tool field); the mesh export of every frame is
 timed for drawer. Targets: drawer psnr_tissue within 1 dB of endogsg, mesh P2S median <= 0.5 mm.
 
+Suite `speed` (issue 52): the levers of training speed, each at full length beside the preset
+as it is: coarse-to-fine resolution (the first 30 % of the run at 1/4 then 1/2 of the size, or
+the first 10 % at 1/2), shorter schedules (2500, 2000, 1500 iterations), fewer initial points,
+and HexPlane's rates at 10x (endogaussian).
+
 Suite `physiosplat` (issue 14): deform3dgs; endogaussian, which is PhysioSplat's Table 2 row (a)
 (the monolithic HexPlane 4DGS baseline); rows (b) +tool/tissue decomposition, (c) +biomechanics
 and (d) +specular (the full `physiosplat` preset); and the full preset trained with tool masks
@@ -312,13 +317,15 @@ SPEED_CASES = (
     Case("deform3dgs-coarse-to-fine", "deform3dgs", "pulling", COARSE_TO_FINE),
     Case("deform3dgs-2000", "deform3dgs", "pulling", ("train.iterations=2000",)),
     Case("deform3dgs-1500", "deform3dgs", "pulling", ("train.iterations=1500",)),
-    Case("deform3dgs-1500-coarse-to-fine", "deform3dgs", "pulling",
-         ("train.iterations=1500", *COARSE_TO_FINE)),
 )
 """Issue 52's levers, each an A/B against the preset as it is, at full length."""
 HEXPLANE_FAST = ("components.deformation.grid_lr=0.016", "components.deformation.mlp_lr=0.0016")
 """HexPlane's planes and MLP at 10x the rates of 4DGS' 14000-iteration schedule."""
 SPEED_CASES += (
+    Case("deform3dgs-2500", "deform3dgs", "pulling", ("train.iterations=2500",)),
+    Case("deform3dgs-30k-points", "deform3dgs", "pulling", ("init.max_points=30000",)),
+    Case("deform3dgs-coarse-before-densify", "deform3dgs", "pulling",
+         ("train.coarse_fraction=0.1", "train.coarse_factor=2")),
     Case("endogaussian", "endogaussian", "pulling", base="deform3dgs"),
     Case("endogaussian-fast-hexplane", "endogaussian", "pulling", HEXPLANE_FAST,
          base="endogaussian"),

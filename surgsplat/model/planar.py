@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from surgsplat.data.frame_memo import PerFrame
+from surgsplat.data.scene import Frame
 from surgsplat.image.depth import depth_gradient_magnitude
 from surgsplat.image.normal_consistency import normal_consistency
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, RenderContext
@@ -56,6 +58,7 @@ class PlanarGaussians(Component):
     def __init__(self, config: PlanarConfig):
         super().__init__()
         self.config = config
+        self.normal_loss_pixels = PerFrame(self._normal_loss_pixels)  # of the data alone
 
     def render_channels(self, state: GaussianState, gaussians, camera,
                         when: FrameTime) -> dict[str, Tensor]:
@@ -81,15 +84,20 @@ class PlanarGaussians(Component):
 
     def normal_loss(self, context: RenderContext) -> Tensor:
         """Eq. 8 over the counted pixels (see the module docstring); 0 when there are none."""
-        output, frame = context.output, context.frame
-        counted = frame.tissue
-        weight = None
+        output = context.output
+        counted, weight = self.normal_loss_pixels(context.frame)
+        total, count = normal_consistency(output.depth, output.extras[NORMAL_CHANNEL],
+                                          context.camera.K, counted, weight)
+        return total / count.clamp_min(1)
+
+    def _normal_loss_pixels(self, frame: Frame) -> tuple[Tensor, Tensor | None]:
+        """The pixels the normal loss counts, bool [H, W] (tissue, with a measured depth where
+        the frame has depth), and their edge-aware weights [H, W] (None: all 1)."""
+        counted, weight = frame.tissue, None
         if frame.depth is not None:
             counted = counted & (frame.depth > 0)
             if self.config.edge_aware:
                 measured = torch.where(frame.depth > 0, frame.depth, torch.ones_like(frame.depth))
                 relative = depth_gradient_magnitude(frame.depth) / measured
                 weight = (1.0 - relative.clamp(0.0, 1.0)) ** 2
-        total, count = normal_consistency(output.depth, output.extras[NORMAL_CHANNEL],
-                                          context.camera.K, counted, weight)
-        return total / count.clamp_min(1)
+        return counted, weight

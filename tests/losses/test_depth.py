@@ -92,3 +92,23 @@ def test_a_frame_without_depth_gives_a_constant_zero():
                               output=SimpleNamespace(depth=rendered))
     term = DepthLoss(DepthLossConfig()).losses(context, frozenset({"depth"}))["depth"]
     assert term.item() == 0.0 and not term.requires_grad
+
+
+@pytest.mark.parametrize("form, loss", [("l1", depth_l1), ("inverse_l1", inverse_depth_l1),
+                                        ("scale_invariant", scale_invariant_depth_l1)])
+def test_the_component_keeps_each_frames_median_and_gives_the_functions_value(form, loss):
+    """The term of a frame seen again equals the function's, computed afresh (the median of the
+    measured depth is kept per frame and size, as it is of the data alone)."""
+    pred, gt, mask = depths()
+    component = DepthLoss(DepthLossConfig(form=form))
+    camera = SimpleNamespace(height=6, width=7)
+    frame = SimpleNamespace(index=3, depth=gt, tissue=mask, camera=camera)
+    for scale in (1.0, 1.1):  # the same frame at two steps, with two renders
+        rendered = (pred * scale).requires_grad_()
+        context = SimpleNamespace(frame=frame, output=SimpleNamespace(depth=rendered))
+        term = component.losses(context, frozenset({"depth"}))["depth"]
+        torch.testing.assert_close(term, loss(rendered, gt, mask), rtol=0, atol=0)
+    other = SimpleNamespace(index=4, depth=gt * 2, tissue=mask, camera=camera)
+    context = SimpleNamespace(frame=other, output=SimpleNamespace(depth=pred))
+    torch.testing.assert_close(component.losses(context, frozenset({"depth"}))["depth"],
+                               loss(pred, gt * 2, mask), rtol=0, atol=0)
