@@ -244,7 +244,8 @@ def target(rule: str, value: float | None, bound: float, at_least: bool = False)
     """A target whose value must be at most `bound`, or at least it (None, never reached, is
     not met)."""
     met = value is not None and (value >= bound if at_least else value <= bound)
-    return {"rule": rule, "value": value, "bound": bound, "met": met}
+    return {"rule": rule, "value": value, "relation": ">=" if at_least else "<=",
+            "bound": bound, "met": met}
 
 
 def check_targets(rows: list[dict]) -> list[dict]:

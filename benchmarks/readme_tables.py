@@ -412,10 +412,7 @@ def onnx_models_table(report: dict) -> str:
 
 def train_table(report: dict) -> str:
     """Markdown for one bench_train report: one row per case (times raw and scaled to the
-    reference probe), then issue 52's targets, then the plot of the curves. Reports of issue
-    10's format (before `threads`) go to train_table_issue10."""
-    if "threads" not in report:
-        return train_table_issue10(report)
+    reference probe), then issue 52's targets, then the plot of the curves."""
     system = report["system"]
     lines = [
         f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}, "
@@ -441,43 +438,12 @@ def train_table(report: dict) -> str:
             f"| {cell(row, 'render_fps', '.1f')} |")
     lines += ["", "| target | measured | bound | met |", "|---|---|---|---|"]
     for target in report["targets"]:
-        measured = "not reached" if target["value"] is None else f"{target['value']:.0f}"
-        lines.append(f"| {target['rule']} | {measured} | <= {target['bound']:.0f} "
-                     f"| {'yes' if target['met'] else '**no**'} |")
+        digits = 2 if "psnr" in target["rule"] else 0  # dB to 0.01, seconds to 1
+        measured = "not reached" if target["value"] is None else f"{target['value']:.{digits}f}"
+        lines.append(f"| {target['rule']} | {measured} | {target['relation']} "
+                     f"{target['bound']:.{digits}f} | {'yes' if target['met'] else '**no**'} |")
     lines += ["", f"![test psnr_tissue against scaled training seconds]"
                   f"(benchmarks/results/{report['plot']})"]
-    return "\n".join(lines)
-
-
-def train_table_issue10(report: dict) -> str:
-    """Markdown for one bench_train report of issue 10's format (no `threads`: a wall budget,
-    seconds to 35 and 39 dB): one row per training run, then its targets beside what was
-    measured."""
-    system = report["system"]
-    lines = [
-        f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}), "
-        f"{report['date'][:10]}, `{report['command']}`:",
-        "",
-        "| scene | method | iterations | train s | s/iter | s/iter, last tenth | s to 35 dB "
-        "| s to 39 dB | test psnr_tissue | render FPS | Gaussians | peak RSS MB | wall s "
-        "| probe evals/s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for row in report["rows"]:
-        lines.append(
-            f"| {row['scene']} | {row['method']} | {row['iterations']} "
-            f"| {cell(row, 'train_seconds', '.0f')} | {cell(row, 'seconds_per_iter', '.3f')} "
-            f"| {cell(row, 'last_tenth_seconds_per_iter', '.3f')} "
-            f"| {cell(row, 'seconds_to_35db', '.0f')} | {cell(row, 'seconds_to_39db', '.0f')} "
-            f"| {cell(row, 'test_psnr_tissue', '.2f')} | {cell(row, 'render_fps', '.1f')} "
-            f"| {row['num_gaussians']} | {cell(row, 'peak_rss_mb', '.0f')} "
-            f"| {cell(row, 'wall_seconds', '.0f')} | {cell(row, 'probe_evals_per_s_before', '.2e')} |")
-    lines += ["", "| target | measured | goal |", "|---|---|---|"]
-    for key, goal in report["targets"].items():
-        value = report["measured"].get(key)
-        shown = "not reached" if value is None else f"{value:.3g}"
-        bound = ">=" if key.endswith("fps") else "<="
-        lines.append(f"| {key.replace('_', ' ')} | {shown} | {bound} {goal:g} |")
     return "\n".join(lines)
 
 

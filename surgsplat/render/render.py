@@ -31,24 +31,30 @@ class RenderOutput:
     extras: dict[str, Tensor] = field(default_factory=dict)  # name -> [H, W, k], alpha-blended
 
 
-class _ColourAndDepth(torch.autograd.Function):
-    """colour [H, W, 3] = image[..., :3] (a view: the rasteriser composited the background) and
-    depth [H, W] = image[..., 3] / max(alpha, MIN_ALPHA_FOR_DEPTH) from the rasterised image
-    [H, W, C >= 4] and alpha [H, W]. The backward is written out: autograd's chain (two
-    zero-filled [H, W, C] gradients of the slices, the division's two terms) cost about twice as
-    many image-sized passes per training step; an output the loss does not use costs nothing."""
+class _SplitChannels(torch.autograd.Function):
+    """The rasterised image [H, W, C >= 4] and alpha [H, W] split into colour [H, W, 3] (a view:
+    the rasteriser composited the background), depth [H, W] = image[..., 3] / max(alpha,
+    MIN_ALPHA_FOR_DEPTH), and the extra channel groups (views of image[..., 4:], `sizes` channels
+    each). The backward is written out and fills one [H, W, C] gradient: autograd's chain (a
+    zero-filled [H, W, C] gradient per slice, summed, and the division's two terms) cost about
+    twice as many image-sized passes per step with colour and depth alone, and with extra
+    channels (normals, plane distances, reflectance) over a third of a `surgsplat` step; an
+    output the loss does not use costs nothing."""
 
     @staticmethod
-    def forward(ctx, image: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(ctx, image: Tensor, alpha: Tensor, sizes: tuple[int, ...]) -> tuple[Tensor, ...]:
         ctx.set_materialize_grads(False)
         clamped = alpha.clamp_min(MIN_ALPHA_FOR_DEPTH)
         depth = image[..., 3] / clamped
         ctx.save_for_backward(alpha, clamped, depth)
-        ctx.channels = image.shape[-1]
-        return image[..., :3], depth
+        ctx.channels, ctx.sizes = image.shape[-1], sizes
+        offsets = [4 + sum(sizes[:i]) for i in range(len(sizes))]
+        extras = [image[..., offset:offset + k] for offset, k in zip(offsets, sizes)]
+        return image[..., :3], depth, *extras
 
     @staticmethod
-    def backward(ctx, grad_colour: Tensor | None, grad_depth: Tensor | None):
+    def backward(ctx, grad_colour: Tensor | None, grad_depth: Tensor | None,
+                 *grad_extras: Tensor | None):
         alpha, clamped, depth = ctx.saved_tensors
         grad_image = alpha.new_zeros(*alpha.shape, ctx.channels)
         grad_alpha = None
@@ -59,7 +65,12 @@ class _ColourAndDepth(torch.autograd.Function):
             grad_image[..., 3] = grad_depth_raw
             # the clamp passes no gradient to alpha where alpha <= MIN_ALPHA_FOR_DEPTH
             grad_alpha = -(grad_depth_raw * depth).masked_fill_(alpha <= MIN_ALPHA_FOR_DEPTH, 0.0)
-        return grad_image, grad_alpha
+        offset = 4
+        for k, grad in zip(ctx.sizes, grad_extras):
+            if grad is not None:
+                grad_image[..., offset:offset + k] = grad
+            offset += k
+        return grad_image, grad_alpha, None
 
 
 def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colors: Tensor,
@@ -94,11 +105,8 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
                              absgrad=absgrad, background=background, gate=gate,
                              backend=backend)
 
-    color, depth = _ColourAndDepth.apply(image, alpha)
+    sizes = tuple(value.reshape(value.shape[0], -1).shape[1] for value in extras.values())
+    color, depth, *extra_images = _SplitChannels.apply(image, alpha, sizes)
     out = RenderOutput(rgb=color, alpha=alpha, depth=depth, projection=projection)
-    offset = 4
-    for name, value in extras.items():
-        k = value.reshape(value.shape[0], -1).shape[1]
-        out.extras[name] = image[..., offset:offset + k]
-        offset += k
+    out.extras.update(zip(extras, extra_images))
     return out

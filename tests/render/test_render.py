@@ -8,7 +8,7 @@ import torch
 from surgsplat.image.pinhole import pixel_rays
 from surgsplat.render.native import native_module
 from surgsplat.render.planar import planar_normals_and_distances, unbiased_plane_depth
-from surgsplat.render.render import MIN_ALPHA_FOR_DEPTH, _ColourAndDepth, render
+from surgsplat.render.render import MIN_ALPHA_FOR_DEPTH, _SplitChannels, render
 from surgsplat.render.sh import SH_C0, eval_sh, sh_colour
 
 W, H = 48, 40
@@ -79,32 +79,34 @@ def test_extras_are_blended_like_colour():
     torch.testing.assert_close(out.extras["pair"], out.rgb[..., 1:])
 
 
-def test_colour_and_depth_gradients_match_autograds_composition():
-    """The written-out backward of the colour view and the depth normalisation equals
-    autograd's gradient of the same expression (float64, 1e-12), including pixels whose alpha
-    is below the depth clamp, and when only one of the two outputs is used."""
+def test_split_channel_gradients_match_autograds_composition():
+    """The written-out backward of the colour view, the depth normalisation and the extra
+    channels' views equals autograd's gradient of the same expression (float64, 1e-12),
+    including pixels whose alpha is below the depth clamp, and whichever outputs are used."""
     generator = torch.Generator().manual_seed(3)
-    image = torch.rand(7, 5, 6, generator=generator, dtype=torch.float64)
+    sizes = (3, 1, 2)
+    image = torch.rand(7, 5, 4 + sum(sizes), generator=generator, dtype=torch.float64)
     alpha = torch.rand(7, 5, generator=generator, dtype=torch.float64)
     alpha[0, :3] = MIN_ALPHA_FOR_DEPTH / 2  # clamped: no depth gradient to alpha
-    grad_colour = torch.randn(7, 5, 3, generator=generator, dtype=torch.float64)
-    grad_depth = torch.randn(7, 5, generator=generator, dtype=torch.float64)
+    upstream = [torch.randn(7, 5, 3, generator=generator, dtype=torch.float64),
+                torch.randn(7, 5, generator=generator, dtype=torch.float64),
+                *(torch.randn(7, 5, k, generator=generator, dtype=torch.float64)
+                  for k in sizes)]
 
-    def composed(i, a):
-        return i[..., :3], i[..., 3] / a.clamp_min(MIN_ALPHA_FOR_DEPTH)
+    def composed(i, a, sizes):
+        return (i[..., :3], i[..., 3] / a.clamp_min(MIN_ALPHA_FOR_DEPTH), i[..., 4:7],
+                i[..., 7:8], i[..., 8:10])
 
-    for use in ("both", "colour", "depth"):
+    for used in ((0, 1, 2, 3, 4), (0,), (1,), (2, 4), (0, 3)):
         grads = []
-        for fn in (_ColourAndDepth.apply, composed):
+        for fn in (_SplitChannels.apply, composed):
             i, a = image.clone().requires_grad_(), alpha.clone().requires_grad_()
-            colour, depth = fn(i, a)
-            loss = ((colour * grad_colour).sum() if use != "depth" else 0.0) + \
-                   ((depth * grad_depth).sum() if use != "colour" else 0.0)
-            loss.backward()
+            outputs = fn(i, a, sizes)
+            sum((outputs[k] * upstream[k]).sum() for k in used).backward()
             grads.append((i.grad, torch.zeros_like(a) if a.grad is None else a.grad))
         (i_fused, a_fused), (i_auto, a_auto) = grads
-        assert torch.allclose(i_fused, i_auto, atol=1e-12, rtol=0), use
-        assert torch.allclose(a_fused, a_auto, atol=1e-12, rtol=0), use
+        assert torch.allclose(i_fused, i_auto, atol=1e-12, rtol=0), used
+        assert torch.allclose(a_fused, a_auto, atol=1e-12, rtol=0), used
 
 
 needs_native = pytest.mark.skipif(native_module() is None, reason="native module not built")
