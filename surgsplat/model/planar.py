@@ -85,19 +85,18 @@ class PlanarGaussians(Component):
     def normal_loss(self, context: RenderContext) -> Tensor:
         """Eq. 8 over the counted pixels (see the module docstring); 0 when there are none."""
         output = context.output
-        counted, weight = self.normal_loss_pixels(context.frame)
+        counted, edge_weight = self.normal_loss_pixels(context.frame)
+        weight = edge_weight if self.config.edge_aware else None
         total, count = normal_consistency(output.depth, output.extras[NORMAL_CHANNEL],
                                           context.camera.K, counted, weight)
         return total / count.clamp_min(1)
 
-    def _normal_loss_pixels(self, frame: Frame) -> tuple[Tensor, Tensor | None]:
+    @staticmethod
+    def _normal_loss_pixels(frame: Frame) -> tuple[Tensor, Tensor | None]:
         """The pixels the normal loss counts, bool [H, W] (tissue, with a measured depth where
-        the frame has depth), and their edge-aware weights [H, W] (None: all 1)."""
-        counted, weight = frame.tissue, None
-        if frame.depth is not None:
-            counted = counted & (frame.depth > 0)
-            if self.config.edge_aware:
-                measured = torch.where(frame.depth > 0, frame.depth, torch.ones_like(frame.depth))
-                relative = depth_gradient_magnitude(frame.depth) / measured
-                weight = (1.0 - relative.clamp(0.0, 1.0)) ** 2
-        return counted, weight
+        the frame has depth), and their edge-aware weights [H, W] (None without depth)."""
+        if frame.depth is None:
+            return frame.tissue, None
+        measured = torch.where(frame.depth > 0, frame.depth, torch.ones_like(frame.depth))
+        relative = depth_gradient_magnitude(frame.depth) / measured
+        return frame.tissue & (frame.depth > 0), (1.0 - relative.clamp(0.0, 1.0)) ** 2
