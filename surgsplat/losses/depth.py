@@ -117,8 +117,8 @@ class DepthLoss(Component):
         super().__init__()
         self.config = config
         self.importance = OcclusionImportance(config.occlusion_gamma)
-        # the median measured depth of each frame's tissue: of the data alone, and finding it
-        # (a boolean gather and a selection) every step cost ~6 % of a deform3dgs step
+        # the median measured depth of each frame's tissue: of the data alone, so found once per
+        # frame (a boolean gather and a selection) rather than at every step
         self.reference = PerFrame(lambda frame: median_measured_depth(frame.depth, frame.tissue))
 
     def setup(self, context: SetupContext) -> None:

@@ -35,11 +35,9 @@ class _SplitChannels(torch.autograd.Function):
     """The rasterised image [H, W, C >= 4] and alpha [H, W] split into colour [H, W, 3] (a view:
     the rasteriser composited the background), depth [H, W] = image[..., 3] / max(alpha,
     MIN_ALPHA_FOR_DEPTH), and the extra channel groups (views of image[..., 4:], `sizes` channels
-    each). The backward is written out and fills one [H, W, C] gradient: autograd's chain (a
-    zero-filled [H, W, C] gradient per slice, summed, and the division's two terms) cost about
-    twice as many image-sized passes per step with colour and depth alone, and with extra
-    channels (normals, plane distances, reflectance) over a third of a `surgsplat` step; an
-    output the loss does not use costs nothing."""
+    each). The backward is written out and fills one [H, W, C] gradient, where autograd's chain
+    would make a zero-filled [H, W, C] gradient per output and sum them, and run the division's
+    two terms; an output the loss does not use costs nothing."""
 
     @staticmethod
     def forward(ctx, image: Tensor, alpha: Tensor, sizes: tuple[int, ...]) -> tuple[Tensor, ...]:
