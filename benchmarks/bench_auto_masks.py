@@ -52,8 +52,7 @@ from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks  # no
 from surgsplat.data.fov_mask import estimate_fov  # noqa: E402
 from surgsplat.data.frames_source import name_numbers  # noqa: E402
 from surgsplat.data.layout import IMAGES_DIR, MASKS_DIR  # noqa: E402
-from surgsplat.data.scene import load_scene, read_image  # noqa: E402
-from surgsplat.data.tool_masks import read_tool_labels  # noqa: E402
+from surgsplat.data.scene import load_scene, read_image, read_tool_mask  # noqa: E402
 from surgsplat.errors import DataError  # noqa: E402
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run  # noqa: E402
 from surgsplat.train.run import load_trained_run  # noqa: E402
@@ -101,7 +100,7 @@ def cholec_clip(data: Path) -> Clip:
     rows = labelled_frames(data)
     return Clip("cholecseg8k", [number for number, _, _ in rows],
                 [read_image(frame) for _, frame, _ in rows],
-                [read_tool_labels(labels, TOOL_LABELS) for _, _, labels in rows],
+                [read_tool_mask(labels, TOOL_LABELS) for _, _, labels in rows],
                 [cv2.imread(str(labels), cv2.IMREAD_GRAYSCALE) != BORDER_LABEL
                  for _, _, labels in rows])
 
@@ -113,7 +112,7 @@ def phantom_clip(name: str, folder: Path) -> Clip:
         raise DataError(folder, "expected a surgsplat phantom with images/ and masks/")
     images = [read_image(frame) for frame in frames]
     return Clip(name, list(range(len(frames))), images,
-                [read_tool_labels(folder / MASKS_DIR / frame.name, None) for frame in frames],
+                [read_tool_mask(folder / MASKS_DIR / frame.name) for frame in frames],
                 [np.ones(image.shape[:2], bool) for image in images])
 
 

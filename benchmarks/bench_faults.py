@@ -1,16 +1,19 @@
 """Fault benchmark: work lost when `surgsplat train` is killed with SIGKILL (kill -9) at random
 moments, whether every kill leaves a run that resumes, and the bad inputs and faults of every
-class of issue 30 run against the CLI.
+class of issues 30 and 53 run against the CLI.
 
     python benchmarks/bench_faults.py [--trials 20] [--checkpoint-seconds 60] [--out FILE]
                                       [--no-cases] [--no-kills]
 
-Cases: per class of issue 30 a few concrete bad inputs or faults, each run as a user runs
+Cases: per class of issue 30 a few concrete bad inputs or faults (here), and every case of
+issue 53 (fault_cases.py), each run as a user runs
 `surgsplat` (a subprocess, a time limit), on the small phantom and a run of a few iterations.
 A case is handled when it ends as it should: one line `error: ...` naming the path, key or
 option at fault (or success, where the fault must be survived), no traceback, no hang, and the
 user's files byte-for-byte as they were. The report counts the cases handled and, over all of
-them, silent wrong results, overwritten user files, tracebacks and hangs.
+them, silent wrong results, overwritten user files, tracebacks and hangs. With PYTHONPATH set
+to an older checkout the cases run its code (the report records the commit): what the cases
+caught before their fixes.
 
 One run of deform3dgs on the small phantom is killed `--trials` times, each time at a random
 moment in the two checkpoint intervals after training (re)started, and resumed with
@@ -23,7 +26,6 @@ strictly increasing iterations. Results go to benchmarks/results/bench_faults-<c
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import random
@@ -39,7 +41,9 @@ from collections.abc import Callable
 from datetime import datetime, timezone
 from pathlib import Path
 
+import fault_cases
 from bench_render import results_path
+from fault_probe import FAST, FULL_DISK_ON, cli, contents, outcome, summarise, surgsplat_command
 
 from surgsplat.render import native
 from surgsplat.train.checkpoint import load_checkpoint
@@ -47,39 +51,12 @@ from surgsplat.train.trainer import CHECKPOINT, LOG_FILE
 
 ENDLESS = 1_000_000
 """Iterations asked of the killed run: it never ends on its own."""
-CASE_SECONDS = 180
-"""A case still running after this long is a hang."""
-FAST = ("--iters", "6", "--set", "init.max_points=1500", "--set", "densify.start=0",
-        "--set", "densify.every=5")
-"""Training settings that keep a case's run to seconds."""
-PATCHED = """
-import errno, os, sys
-{patch}
-from surgsplat.cli.main import main
-sys.argv = ["surgsplat", *sys.argv[1:]]
-main()
-"""
-FULL_DISK_ON = """
-import builtins, io
-real_open = builtins.open
-def full_disk_open(file, mode="r", *args, **kwargs):
-    name = os.fsdecode(file) if isinstance(file, (str, bytes, os.PathLike)) else ""
-    if "w" in mode and {suffix!r} in name:
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), name)
-    return real_open(file, mode, *args, **kwargs)
-builtins.open = io.open = full_disk_open
-"""
-"""Writing a file whose name holds `suffix` fails as on a full disk (open and Path.open)."""
 FAILING_FFMPEG = """#!/bin/sh
 for output; do :; done
 head -c 1000 > "$output"
 echo "Error writing trailer: No space left on device" >&2
 exit 228
 """
-
-
-def surgsplat_command(*args: str) -> list[str]:
-    return [sys.executable, "-m", "surgsplat.cli.main", *args]
 
 
 def logged(run: Path) -> list[int]:
@@ -121,43 +98,6 @@ def one_kill(phantom: Path, run: Path, checkpoint_seconds: float, rng: random.Ra
             "checkpoint_iteration": int(state["iteration"]),
             "logged_iteration": reached,
             "lost_iterations_logged": max(reached - int(state["iteration"]), 0)}
-
-
-def cli(*args: str, patch: str = "", env: dict | None = None) -> subprocess.CompletedProcess | None:
-    """`surgsplat *args` as a user runs it (after the Python code `patch`, to inject a fault);
-    None when it is still running after CASE_SECONDS (it is then killed)."""
-    command = ([sys.executable, "-c", PATCHED.format(patch=patch)] if patch
-               else [sys.executable, "-m", "surgsplat.cli.main"])
-    try:
-        return subprocess.run([*command, *args], capture_output=True, text=True,
-                              timeout=CASE_SECONDS, env={**os.environ, **(env or {})})
-    except subprocess.TimeoutExpired:
-        return None
-
-
-def contents(folder: Path) -> dict[str, str]:
-    """Digest of every file under `folder` by relative path (hidden files left out)."""
-    return {str(p.relative_to(folder)): hashlib.blake2b(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file() and not p.name.startswith(".")}
-
-
-def outcome(result: subprocess.CompletedProcess | None, status: int, names: str,
-            wrong: bool = False, overwrote: bool = False) -> dict:
-    """A case's outcome: handled when it ended with `status`, its last line names `names`
-    (for an error: one line `error: ...`), with no traceback, no hang, no silent wrong result
-    and no overwritten user file."""
-    if result is None:
-        return {"handled": False, "hang": True, "traceback": False, "silent_wrong": wrong,
-                "overwrote": overwrote, "said": f"(killed after {CASE_SECONDS} s)"}
-    lines = result.stderr.strip().splitlines()
-    traceback = "Traceback" in result.stderr
-    said = lines[-1] if lines else ""
-    one_line = status == 0 or (said.startswith("error:") and sum(
-        line.startswith("error:") for line in lines) == 1)
-    handled = (result.returncode == status and names in result.stderr + result.stdout
-               and one_line and not traceback and not wrong and not overwrote)
-    return {"handled": handled, "hang": False, "traceback": traceback, "silent_wrong": wrong,
-            "overwrote": overwrote, "status": result.returncode, "said": said[:300]}
 
 
 def case_frame_order(w: Path) -> dict:
@@ -388,27 +328,26 @@ CASES: list[tuple[int, Callable[[Path], dict]]] = [
 """(class of issue 30, case) in the order run."""
 
 
-def run_cases(workspace: Path) -> dict:
-    """Every case of CASES in `workspace` (the small phantom and a short run made first): per
-    case its outcome, and the totals."""
+def prepare_workspace(workspace: Path) -> None:
+    """The small phantom (`phantom`) and a short run of it (`run`) that the cases start from."""
     phantom, run = workspace / "phantom", workspace / "run"
     subprocess.run(surgsplat_command("phantom", "--out", str(phantom), "--preset", "small"),
                    check=True, capture_output=True)
     subprocess.run(surgsplat_command("train", "--data", str(phantom), "--out", str(run), *FAST),
                    check=True, capture_output=True)
+
+
+def run_cases(cases: list[tuple[int | str, Callable[[Path], dict]]], workspace: Path) -> dict:
+    """Every case of `cases` ((class, case) pairs) in the prepared `workspace`: per case its
+    outcome, and the totals."""
     rows = []
-    for issue_class, case in CASES:
+    for issue_class, case in cases:
         started = time.perf_counter()
         row = {"class": issue_class, "case": case.__doc__.split(": ", 1)[1].split("\n")[0],
                **case(workspace), "seconds": round(time.perf_counter() - started, 1)}
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
-    totals = {key: sum(bool(row[key]) for row in rows)
-              for key in ("handled", "silent_wrong", "overwrote", "traceback", "hang")}
-    by_class = {str(c): {"cases": sum(r["class"] == c for r in rows),
-                         "handled": sum(r["class"] == c and r["handled"] for r in rows)}
-                for c in sorted({r["class"] for r in rows})}
-    return {"cases": len(rows), **totals, "by_class": by_class, "case_rows": rows}
+    return summarise(rows)
 
 
 def main() -> None:
@@ -418,24 +357,54 @@ def main() -> None:
                         help="train.checkpoint_seconds of the run (the bound on lost work)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path)
-    parser.add_argument("--no-cases", action="store_true", help="skip the cases of issue 30")
+    parser.add_argument("--no-cases", action="store_true", help="skip the cases")
+    parser.add_argument("--no-kills", action="store_true", help="skip the kill -9 trials")
     args = parser.parse_args()
-    rng = random.Random(args.seed)
-    cases = {}
+    groups = {}
     if not args.no_cases:
         with tempfile.TemporaryDirectory() as tmp:
-            cases = run_cases(Path(tmp))
-        print(f"issue 30: {cases['handled']} of {cases['cases']} cases handled; silent wrong "
-              f"results {cases['silent_wrong']}, overwritten user files {cases['overwrote']}, "
-              f"tracebacks {cases['traceback']}, hangs {cases['hang']}")
+            prepare_workspace(Path(tmp))
+            for name, cases in (("issue_30", CASES), ("issue_53", fault_cases.CASES)):
+                groups[name] = run_cases(cases, Path(tmp))
+                totals = groups[name]
+                print(f"{name}: {totals['handled']} of {totals['cases']} cases handled; silent "
+                      f"wrong results {totals['silent_wrong']}, overwritten user files "
+                      f"{totals['overwrote']}, tracebacks {totals['traceback']}, hangs "
+                      f"{totals['hang']}")
+    info = native.system_info()
+    report = {"benchmark": "bench_faults", "cpu": info["cpu"], "system": info,
+              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+              "commit": source_commit(), **groups}
+    if not args.no_kills:
+        report.update(kill_trials(args.trials, args.checkpoint_seconds, random.Random(args.seed)))
+    out = args.out or results_path("bench_faults", info)
+    out.write_text(json.dumps(report, indent=1) + "\n")
+    print(f"written to {out}")
+    if not report.get("final_resume_ok", True):
+        sys.exit(1)
+
+
+def source_commit() -> str:
+    """The commit of the surgsplat source these cases ran (a fault benchmark may run an older
+    checkout, to count the cases it fails)."""
+    import surgsplat
+
+    found = subprocess.run(["git", "-C", str(Path(surgsplat.__file__).parent), "rev-parse",
+                            "--short", "HEAD"], capture_output=True, text=True)
+    return found.stdout.strip() or "unknown"
+
+
+def kill_trials(trials: int, checkpoint_seconds: float, rng: random.Random) -> dict:
+    """`trials` kill -9 of one training run, each resumed, then a final resume to the end: the
+    work each kill lost, and whether every checkpoint loaded and the log stayed in order."""
     with tempfile.TemporaryDirectory() as tmp:
         phantom, run = Path(tmp) / "phantom", Path(tmp) / "run"
         subprocess.run(surgsplat_command("phantom", "--out", str(phantom), "--preset", "small"),
                        check=True, capture_output=True)
-        trials = []
-        for trial in range(args.trials):
-            trials.append(one_kill(phantom, run, args.checkpoint_seconds, rng))
-            print(json.dumps({"trial": trial, **trials[-1]}), file=sys.stderr)
+        rows = []
+        for trial in range(trials):
+            rows.append(one_kill(phantom, run, checkpoint_seconds, rng))
+            print(json.dumps({"trial": trial, **rows[-1]}), file=sys.stderr)
         end = load_checkpoint(run / CHECKPOINT)["iteration"] + 10
         finished = subprocess.run(surgsplat_command("train", "--out", str(run), "--resume",
                                                     "--iters", str(end)),
@@ -443,25 +412,16 @@ def main() -> None:
         iterations = logged(run)
         resumed_ok = (finished.returncode == 0 and iterations[-1] == end
                       and all(a < b for a, b in zip(iterations, iterations[1:])))
-    lost = [t["lost_wall_s"] for t in trials]
-    info = native.system_info()
-    report = {"benchmark": "bench_faults", "cpu": info["cpu"], "system": info,
-              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-              "command": "surgsplat train --method deform3dgs (small phantom), kill -9, --resume",
-              "checkpoint_seconds": args.checkpoint_seconds, "trials": len(trials),
-              "lost_wall_s_median": statistics.median(lost), "lost_wall_s_max": max(lost),
-              "lost_iterations_logged_max": max(t["lost_iterations_logged"] for t in trials),
-              "checkpoints_damaged": 0, "final_resume_ok": resumed_ok,
-              "final_log_strictly_increasing": resumed_ok, "rows": trials,
-              "issue_30": cases}
-    out = args.out or results_path("bench_faults", info)
-    out.write_text(json.dumps(report, indent=1) + "\n")
-    print(f"{len(trials)} kills, checkpoint every {args.checkpoint_seconds:g} s: work lost median "
-          f"{report['lost_wall_s_median']:.1f} s, max {report['lost_wall_s_max']:.1f} s; "
-          f"every checkpoint loaded; final resume {'ok' if resumed_ok else 'FAILED'}")
-    print(f"written to {out}")
-    if not resumed_ok:
-        sys.exit(1)
+    lost = [row["lost_wall_s"] for row in rows]
+    print(f"{trials} kills, checkpoint every {checkpoint_seconds:g} s: work lost median "
+          f"{statistics.median(lost):.1f} s, max {max(lost):.1f} s; every checkpoint loaded; "
+          f"final resume {'ok' if resumed_ok else 'FAILED'}")
+    return {"command": "surgsplat train --method deform3dgs (small phantom), kill -9, --resume",
+            "checkpoint_seconds": checkpoint_seconds, "trials": trials,
+            "lost_wall_s_median": statistics.median(lost), "lost_wall_s_max": max(lost),
+            "lost_iterations_logged_max": max(row["lost_iterations_logged"] for row in rows),
+            "checkpoints_damaged": 0, "final_resume_ok": resumed_ok,
+            "final_log_strictly_increasing": resumed_ok, "rows": rows}
 
 
 if __name__ == "__main__":

@@ -84,6 +84,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -456,7 +457,7 @@ def surgsplat(*args: str) -> float:
 def phantom_dir(work: Path, key: str, shared_data: Path = SHARED_DATA) -> Path:
     """The scene of `key` under `work`: the phantom of PHANTOMS[key] generated there, or the
     real sample of REAL_SCENES[key] (under `shared_data`) imported there, unless it already
-    is."""
+    is (see prepared_scene: runs asking for it at once, --jobs, share one)."""
     if key in REAL_SCENES:
         real = REAL_SCENES[key]
         source = shared_data / real.folder
@@ -464,15 +465,30 @@ def phantom_dir(work: Path, key: str, shared_data: Path = SHARED_DATA) -> Path:
             raise SystemExit(f"{source}: no such folder; the real-data cases need the shared "
                              f"samples (--shared-data, default ../shared/data beside the "
                              f"repository)")
-        scene = work / f"scene-{key}"
-        if not (scene / "poses_bounds.npy").is_file():
-            surgsplat("import", str(source), "--out", str(scene),
-                      *(option.format(source=source) for option in real.import_options))
+        options = [option.format(source=source) for option in real.import_options]
+        return prepared_scene(work / f"scene-{key}", lambda scene: surgsplat(
+            "import", str(source), "--out", str(scene), *options))
+    return prepared_scene(work / f"phantom-{key}", lambda scene: surgsplat(
+        "phantom", "--out", str(scene), *PHANTOMS[key]))
+
+
+def prepared_scene(scene: Path, make: Callable[[Path], object]) -> Path:
+    """`scene`, made by `make(folder)` unless it holds a scene (poses_bounds.npy). It is made
+    in a temporary folder beside it and renamed into place, so that runs preparing the same
+    scene at once never see one part-written: the first rename wins, the others' copies are
+    removed."""
+    if (scene / "poses_bounds.npy").is_file():
         return scene
-    folder = work / f"phantom-{key}"
-    if not (folder / "poses_bounds.npy").is_file():
-        surgsplat("phantom", "--out", str(folder), *PHANTOMS[key])
-    return folder
+    with tempfile.TemporaryDirectory(prefix=f".{scene.name}-", dir=scene.parent) as temporary:
+        made = Path(temporary) / scene.name
+        make(made)
+        try:
+            made.rename(scene)
+        except OSError:  # another run renamed its copy into place first, or `scene` is in the way
+            if not (scene / "poses_bounds.npy").is_file():
+                raise SystemExit(f"{scene}: holds no scene (no poses_bounds.npy); remove it "
+                                 "and run again") from None
+    return scene
 
 
 def source_commit() -> str | None:

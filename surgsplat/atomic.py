@@ -76,6 +76,22 @@ def remove_stale_temporaries(folder: Path) -> None:
             (folder / name).unlink(missing_ok=True)
 
 
+def naming_targets(err: OSError, targets: dict[str, Path], default: Path) -> OSError:
+    """`err` as the user should read it: each temporary file it names (a key of `targets`, by
+    path) replaced by the file that temporary stands for, and `default` named when it names no
+    file (ENOSPC from a write, say); `err` itself when that changes nothing or it has no errno."""
+    if err.errno is None:
+        return err
+    names = [os.fspath(name) if isinstance(name, (str, os.PathLike)) else name
+             for name in (err.filename, err.filename2)]
+    first, second = (str(targets[name]) if name in targets else name for name in names)
+    first = str(default) if first is None else first
+    second = None if second == first else second
+    if [first, second] == names:
+        return err
+    return OSError(err.errno, err.strerror or str(err), first, None, second)
+
+
 @contextmanager
 def replacing(path: Path, keep_previous: Path | None = None) -> Iterator[Path]:
     """A temporary path beside `path` (same suffix) for the block to write, by name, in full;
@@ -84,12 +100,14 @@ def replacing(path: Path, keep_previous: Path | None = None) -> Iterator[Path]:
     keep_previous: once the new file is complete, the old `path` (when there is one) becomes
     this file (a hard link, no copy), so a later-damaged `path` still has a complete
     predecessor; `path` itself exists, whole, at every moment.
-    An OSError without a file name (ENOSPC from a write, say) is re-raised naming `path`.
+    An OSError names the file it is about (`path`, or `keep_previous`), never a temporary, and
+    one without a file name (ENOSPC from a write, say) is re-raised naming `path`.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(path.parent)
     tmp = temporary_path(path)
+    targets = {os.fspath(tmp): path}
     try:
         yield tmp
         fd = os.open(tmp, os.O_RDONLY)
@@ -99,6 +117,7 @@ def replacing(path: Path, keep_previous: Path | None = None) -> Iterator[Path]:
             os.close(fd)
         if keep_previous is not None and path.is_file():
             link = keep_previous.with_name(f".{keep_previous.name}.{tmp.name}")
+            targets[os.fspath(link)] = keep_previous
             try:
                 os.link(path, link)
                 os.replace(link, keep_previous)
@@ -107,9 +126,10 @@ def replacing(path: Path, keep_previous: Path | None = None) -> Iterator[Path]:
         os.replace(tmp, path)
         fsync_dir(path.parent)
     except OSError as err:
-        if err.filename is None and err.errno is not None:
-            raise OSError(err.errno, err.strerror or str(err), str(path)) from err
-        raise
+        named = naming_targets(err, targets, path)
+        if named is err:
+            raise
+        raise named from err
     finally:
         tmp.unlink(missing_ok=True)
 

@@ -7,10 +7,14 @@ see DIR and the clips at the same paths). A failing task is retried (--retries),
 is recorded failed with its error while the others go on. The batch is resumable: clips that
 finished (done or failed) are skipped, an interrupted clip re-imports only when its scene is
 incomplete and resumes training from its checkpoint. DIR/summary.csv collects every clip's
-state and metrics, DIR/report.html (with the `report` extra) their runs.
+state and metrics, DIR/report.html (with the `report` extra) their runs: the clips of this
+batch and those that earlier batches into DIR, with other clips, finished. A clip named as one
+that an earlier batch finished from another source is refused.
 
 A failed clip is one line on the console (its stage and error, never a task's traceback), and
-the batch then exits with status 1; a second batch into a DIR in use is refused.
+the batch then exits with status 1; a second batch into a DIR in use is refused, and so is a
+batch whose tasks no node could hold (see `surgsplat.cli.batch_cluster`). A stop (Ctrl-C or
+SIGTERM) is one line saying how many clips finished; running the command again goes on.
 """
 
 from __future__ import annotations
@@ -26,7 +30,9 @@ from rich.console import Console
 from rich.progress import TextColumn
 
 from surgsplat.atomic import write_text_atomic
-from surgsplat.cli.batch_stages import (DONE, FAILED, STAGES, ClipJob, StageFailure,
+from surgsplat.cli.batch_cluster import (GIB, check_local_request, check_nodes_hold, connect,
+                                         ray_module, ray_nodes)
+from surgsplat.cli.batch_stages import (DONE, FAILED, RUN_DIR, STAGES, ClipJob, StageFailure,
                                         attempt_stage, error_line, job_config, planned_iterations,
                                         read_status, record_outcome, summary_row,
                                         trained_iterations)
@@ -38,7 +44,6 @@ from surgsplat.train.run import run_lock
 SUMMARY_FILE = "summary.csv"
 REPORT_FILE = "report.html"
 POLL_SECONDS = 1.0
-GIB = 2**30
 
 
 def clip_jobs(clips: list[Path], out: Path, method: str, iterations: int | None, threads: int,
@@ -60,14 +65,16 @@ def clip_jobs(clips: list[Path], out: Path, method: str, iterations: int | None,
     return jobs
 
 
-def ray_module():
-    """The ray package, or a SurgsplatError saying how to install it."""
-    try:
-        import ray
-    except ImportError:
-        raise SurgsplatError("surgsplat batch needs Ray: pip install 'surgsplat[batch]'") \
-            from None
-    return ray
+def check_clip_folders(jobs: list[ClipJob]) -> None:
+    """SurgsplatError for a clip whose folder holds another clip that an earlier batch into
+    the same DIR finished (same name, other source): its results would be taken for this
+    clip's."""
+    for job in jobs:
+        recorded = (read_status(job.folder) or {}).get("clip")
+        if recorded is not None and Path(recorded) != job.source:
+            raise SurgsplatError(f"{job.source}: {job.folder} holds the results of another "
+                                 f"clip of the same name, {recorded}; rename the clip or "
+                                 "choose another --out")
 
 
 def submit_clip(ray, job: ClipJob, memory_gb: float, retries: int) -> list:
@@ -85,17 +92,17 @@ def submit_clip(ray, job: ClipJob, memory_gb: float, retries: int) -> list:
 
 def run_batch(jobs: list[ClipJob], ray_address: str | None, num_cpus: int | None,
               memory_gb: float, retries: int, console: Console) -> list[dict]:
-    """Run every job without a status on Ray (starting a local instance unless one is running
-    or `ray_address` names a cluster); returns the statuses recorded now."""
-    pending = [job for job in jobs if read_status(job) is None]
+    """Run every job without a status on Ray (starting a local instance unless this process
+    is connected to one or `ray_address` names a cluster), once its nodes are known to hold
+    the clips' tasks; returns the statuses recorded now."""
+    pending = [job for job in jobs if read_status(job.folder) is None]
     if not pending:
         return []
     ray = ray_module()
     started_here = not ray.is_initialized()
-    if started_here:
-        ray.init(address=ray_address, num_cpus=None if ray_address else num_cpus,
-                 include_dashboard=False, log_to_driver=False, configure_logging=False)
+    where = connect(ray, ray_address, num_cpus) if started_here else "the running Ray instance"
     try:
+        check_nodes_hold(ray_nodes(ray), pending[0].threads, memory_gb, where)
         return _follow(ray, pending, memory_gb, retries, console)
     finally:
         if started_here:
@@ -150,18 +157,41 @@ def _clip_outcome(ray, stage_refs: list, retries: int) -> Path | StageFailure:
     return next((o for o in outcomes if isinstance(o, StageFailure)), outcomes[-1])
 
 
-def write_summary(jobs: list[ClipJob], out: Path) -> list[dict]:
-    """DIR/summary.csv: one row per clip (name, state, timing, error, metrics); and
-    DIR/report.html of the finished runs when the report extra is installed."""
-    rows = [summary_row(job) for job in jobs]
+def summary_clips(jobs: list[ClipJob], out: Path) -> list[tuple[Path, Path]]:
+    """(folder, source) of every clip the summary of DIR covers: the jobs' clips in order, then
+    the clips that earlier batches into DIR finished, by name."""
+    clips = [(job.folder, job.source) for job in jobs]
+    own = {job.folder for job in jobs}
+    for folder in sorted(out.resolve().iterdir()) if out.is_dir() else ():
+        status = read_status(folder) if folder.is_dir() and folder not in own else None
+        if status is not None:
+            clips.append((folder, Path(status["clip"])))
+    return clips
+
+
+def summary_text(rows: list[dict]) -> str:
+    """The CSV table of the summary's rows, a column per key that any row has."""
     columns = list(dict.fromkeys(key for row in rows for key in row))
-    out.mkdir(parents=True, exist_ok=True)
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
-    write_text_atomic(out / SUMMARY_FILE, text.getvalue())
-    finished = [job.run_dir for job, row in zip(jobs, rows) if row["state"] == DONE]
+    return text.getvalue()
+
+
+def write_summary(jobs: list[ClipJob], out: Path) -> list[dict]:
+    """DIR/summary.csv: one row per clip of the jobs and per clip finished in DIR before (name,
+    state, timing, error, metrics); and DIR/report.html of the finished runs when the report
+    extra is installed. Both are left as they are when the summary would not change."""
+    clips = summary_clips(jobs, out)
+    rows = [summary_row(folder, source) for folder, source in clips]
+    text = summary_text(rows)
+    summary = out / SUMMARY_FILE
+    if summary.is_file() and summary.read_text() == text:
+        return rows
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(summary, text)
+    finished = [folder / RUN_DIR for (folder, _), row in zip(clips, rows) if row["state"] == DONE]
     if finished:
         try:
             from surgsplat.export.report import write_report
@@ -181,8 +211,9 @@ def batch_command(
     iters: Annotated[int | None, typer.Option(help="Training iterations per clip (preset "
                                                     "default if omitted).")] = None,
     ray_address: Annotated[str | None, typer.Option(
-        help="Address of an existing Ray cluster, e.g. ray://head:10001 or auto (default: a "
-             "local Ray instance on this machine).")] = None,
+        help="Address of an existing Ray cluster: HOST:PORT of its head, ray://HOST:10001 "
+             "(needs pip install \"ray[client]\") or auto (the cluster `ray start` runs on "
+             "this machine); default: a new local Ray instance.")] = None,
     cpus_per_clip: Annotated[int, typer.Option(min=1, help="CPUs each task declares (and its "
                                                            "thread count).")] = 1,
     memory_gb: Annotated[float, typer.Option(min=0.1, help="Memory each task declares, "
@@ -206,6 +237,8 @@ def batch_command(
     jobs = clip_jobs(clips, out, method, iters, cpus_per_clip, fps, geometry, tuple(set_ or ()))
     if jobs:
         job_config(jobs[0])  # an unknown preset or a bad --set stops here, before any work
+    if ray_address is None:
+        check_local_request(cpus_per_clip, memory_gb, num_cpus)
     with run_lock(out, create=True):
         failed = run_batch_folder(jobs, out, ray_address, num_cpus, memory_gb, retries,
                                   retry_failed)
@@ -217,19 +250,30 @@ def run_batch_folder(jobs: list[ClipJob], out: Path, ray_address: str | None,
                      num_cpus: int | None, memory_gb: float, retries: int,
                      retry_failed: bool) -> int:
     """Run the batch in OUT (held by this process), write its summary and print its final
-    line; returns how many clips are recorded failed."""
+    line; returns how many clips are recorded failed. A stop (Ctrl-C or SIGTERM) is a
+    SurgsplatError saying how many clips finished."""
     console = Console(soft_wrap=True)  # one line per message, whatever the terminal's width
+    check_clip_folders(jobs)
     if retry_failed:
         for job in jobs:
-            if (read_status(job) or {}).get("state") == FAILED:
+            if (read_status(job.folder) or {}).get("state") == FAILED:
                 job.status_path.unlink()
-    skipped = sum(read_status(job) is not None for job in jobs)
+    skipped = sum(read_status(job.folder) is not None for job in jobs)
     if skipped:
         console.print(f"{skipped} of {len(jobs)} clips already finished; skipped")
-    recorded = run_batch(jobs, ray_address, num_cpus, memory_gb, retries, console)
-    if recorded or not (out / SUMMARY_FILE).is_file():
-        write_summary(jobs, out)
-    states = [(read_status(job) or {}).get("state") for job in jobs]
-    console.print(f"{states.count(DONE)} of {len(jobs)} clips done, {states.count(FAILED)} "
-                  f"failed; summary: {out / SUMMARY_FILE}")
-    return states.count(FAILED)
+    try:
+        run_batch(jobs, ray_address, num_cpus, memory_gb, retries, console)
+    except KeyboardInterrupt:
+        raise SurgsplatError(f"interrupted (Ctrl-C or SIGTERM) with {finished_line(jobs)}; "
+                             "run the same command again to go on: finished clips are skipped, "
+                             "the others resume") from None
+    write_summary(jobs, out)
+    console.print(f"{finished_line(jobs)}; summary: {out / SUMMARY_FILE}")
+    return [(read_status(job.folder) or {}).get("state") for job in jobs].count(FAILED)
+
+
+def finished_line(jobs: list[ClipJob]) -> str:
+    """How many of the jobs' clips are recorded done and failed, e.g. "2 of 3 clips done, 1
+    failed"."""
+    states = [(read_status(job.folder) or {}).get("state") for job in jobs]
+    return f"{states.count(DONE)} of {len(jobs)} clips done, {states.count(FAILED)} failed"

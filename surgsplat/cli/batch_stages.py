@@ -36,10 +36,12 @@ from surgsplat.pipeline.evaluate import evaluate
 from surgsplat.pipeline.render import write_run_videos
 from surgsplat.pipeline.train import train_run
 from surgsplat.render.native import set_threads
+from surgsplat.train.checkpoint import has_checkpoint
 from surgsplat.train.run import load_trained_run, run_lock
 from surgsplat.train.trainer import CHECKPOINT, LOG_FILE, read_log
 
 STATUS_FILE = "status.json"
+RUN_DIR = "run"
 DONE, FAILED = "done", "failed"
 
 
@@ -62,7 +64,7 @@ class ClipJob:
 
     @property
     def run_dir(self) -> Path:
-        return self.folder / "run"
+        return self.folder / RUN_DIR
 
     @property
     def status_path(self) -> Path:
@@ -104,7 +106,7 @@ def train_stage(job: ClipJob, scene_dir: Path) -> Path:
     """Train the clip's run to its end, resuming from its checkpoint when it has one."""
     set_threads(job.threads)
     with run_lock(job.run_dir, create=True):
-        resume = (job.run_dir / CHECKPOINT).is_file()
+        resume = has_checkpoint(job.run_dir / CHECKPOINT)
         train_run(job_config(job), scene_dir, job.run_dir, resume, job.iterations)
     return job.run_dir
 
@@ -204,13 +206,15 @@ def record_status(job: ClipJob, state: str, seconds: float, attempts: int, stage
     return status
 
 
-def read_status(job: ClipJob) -> dict | None:
-    """The clip's status.json, or None when it has none (never finished) or it is unreadable."""
+def read_status(folder: Path) -> dict | None:
+    """The status.json of the clip kept in `folder` (OUT/<name>), or None when it has none
+    (never finished) or it is unreadable."""
     try:
-        status = json.loads(job.status_path.read_text())
-    except (OSError, json.JSONDecodeError):
+        status = json.loads((folder / STATUS_FILE).read_text())
+    except (OSError, ValueError):  # ValueError: not JSON, or not UTF-8 text
         return None
-    return status if isinstance(status, dict) and status.get("state") in (DONE, FAILED) else None
+    return status if isinstance(status, dict) and status.get("state") in (DONE, FAILED) \
+        and isinstance(status.get("clip"), str) else None
 
 
 def trained_iterations(run_dir: Path) -> int:
@@ -219,12 +223,14 @@ def trained_iterations(run_dir: Path) -> int:
     return entries[-1]["iteration"] if entries else 0
 
 
-def summary_row(job: ClipJob) -> dict:
-    """The clip's status with its run's metrics (scalar values only)."""
-    row = {"name": job.name, **(read_status(job) or {"clip": str(job.source), "state": "pending"})}
+def summary_row(folder: Path, source: Path) -> dict:
+    """The status of the clip kept in `folder` (from `source`; state "pending" before it
+    finishes) with its run's metrics (scalar values only) once done."""
+    row = {"name": folder.name,
+           **(read_status(folder) or {"clip": str(source), "state": "pending"})}
     try:
-        metrics = json.loads((job.run_dir / METRICS_FILE).read_text())
-    except (OSError, json.JSONDecodeError):
+        metrics = json.loads((folder / RUN_DIR / METRICS_FILE).read_text())
+    except (OSError, ValueError):  # ValueError: not JSON, or not UTF-8 text
         metrics = {}
     if row["state"] == DONE:
         row.update({key: value for key, value in metrics.items()

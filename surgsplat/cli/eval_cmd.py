@@ -13,7 +13,8 @@ from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
 from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions
 from surgsplat.pipeline.evaluate import evaluate
-from surgsplat.train.run import load_trained_run, run_lock
+from surgsplat.pipeline.run_folders import load_run
+from surgsplat.train.run import run_lock
 
 
 def print_metrics(metrics: dict, console: Console) -> None:
@@ -45,7 +46,7 @@ def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
                         data: Path | None = None) -> dict:
     """Evaluate the run with a progress bar (`pipeline.evaluate.evaluate`: writes
     RUN/metrics.json), print the table; returns the metrics."""
-    run = load_trained_run(run_dir, data)
+    run = load_run(run_dir, data)
     with progress_bar() as bar:
         task = bar.add_task("evaluate", total=len((options or EvalOptions()).frames_of(run)))
         metrics = evaluate(run, options, lambda done, _: bar.update(task, completed=done))
@@ -58,7 +59,8 @@ def evaluate_and_report(run_dir: Path, options: EvalOptions | None = None,
 
 def eval_command(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `surgsplat train`.")],
-    data: Annotated[Path | None, typer.Option(help="Scene folder (default: the run's).")] = None,
+    data: Annotated[Path | None, typer.Option(
+        help="Scene folder (default: the run's; its content must be the run's scene).")] = None,
     alexnet_weights: Annotated[Path | None, typer.Option(
         help="torchvision AlexNet checkpoint for LPIPS (else $SURGSPLAT_ALEXNET_WEIGHTS or the "
              "torch hub cache; LPIPS is null when none is found).")] = None,

@@ -12,10 +12,11 @@ from rich.table import Table
 from surgsplat.cli.info import print_summary_table
 from surgsplat.cli.progress import progress_bar
 from surgsplat.data.importer import ImportConfig, import_scene
-from surgsplat.data.layout import META_FILE, SceneMeta
+from surgsplat.data.layout import MAX_FRAME_PIXELS, META_FILE, SceneMeta
 from surgsplat.data.learned_priors import (DEPTH_OUTPUTS, TOOL_OUTPUTS, DepthNetworkConfig,
                                            ToolSegmenterConfig)
 from surgsplat.data.onnx_models import IMAGENET_MEAN, IMAGENET_STD, ModelInput
+from surgsplat.data.scene import MIN_SIZE
 from surgsplat.data.sfm_poses import INSTALL_HINT, SfmConfig
 from surgsplat.data.shading_depth import ShadingDepthConfig
 from surgsplat.data.stereo import SGBM_MODES, StereoConfig
@@ -202,9 +203,11 @@ def import_command(
     start: Annotated[int, typer.Option(help="First source frame (0-based).")] = 0,
     end: Annotated[int | None, typer.Option(help="Stop before this source frame.")] = None,
     stride: Annotated[int, typer.Option(help="Keep every n-th frame.")] = 1,
-    resize: Annotated[str | None, typer.Option(help="Output size WIDTHxHEIGHT, same aspect "
-                                                    "ratio, e.g. 640x360.")] = None,
-    scale: Annotated[float | None, typer.Option(help="Output size as a factor, e.g. 0.5.")] = None,
+    resize: Annotated[str | None, typer.Option(
+        help=f"Output size WIDTHxHEIGHT, same aspect ratio, e.g. 640x360; at least "
+             f"{MIN_SIZE}x{MIN_SIZE}, at most {MAX_FRAME_PIXELS:,} pixels.")] = None,
+    scale: Annotated[float | None, typer.Option(
+        help="Output size as a factor, e.g. 0.5 (the same bounds as --resize).")] = None,
     poses: Annotated[str, typer.Option(
         help="Camera poses: static (one fixed camera) or sfm (each frame's camera from "
              "structure from motion with COLMAP on the tissue pixels: the tool masks and the "

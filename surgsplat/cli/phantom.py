@@ -12,8 +12,8 @@ from rich.console import Console
 from surgsplat.cli.info import print_summary_table
 from surgsplat.cli.progress import progress_bar
 from surgsplat.data.phantom.camera_path import CAMERAS
-from surgsplat.data.phantom.generate import (PRESETS, PhantomConfig, check_phantom_request,
-                                             generate_phantom)
+from surgsplat.data.phantom.generate import (MAX_SEED, PRESETS, PhantomConfig,
+                                             check_phantom_request, generate_phantom)
 from surgsplat.data.phantom.motion import MOTIONS
 from surgsplat.data.phantom.shading import LIGHTINGS
 
@@ -25,7 +25,8 @@ def phantom_command(
     camera: Annotated[str, typer.Option(
         help=f"Endoscope: {', '.join(CAMERAS)} (moving: translates a few mm and turns a few "
              "degrees; poses in poses_bounds.npy and gt/camera_poses.npy).")] = "static",
-    seed: Annotated[int, typer.Option(help="Seed of texture, shape and tool path.")] = 0,
+    seed: Annotated[int, typer.Option(
+        help=f"Seed of texture, shape and tool path, 0..{MAX_SEED}.")] = 0,
     frames: Annotated[int | None, typer.Option(help="Number of frames (preset default if "
                                                      "omitted).")] = None,
     lighting: Annotated[str, typer.Option(

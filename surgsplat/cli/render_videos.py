@@ -19,7 +19,8 @@ from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
 from surgsplat.model.capabilities import UNIFORM
 from surgsplat.pipeline.render import DEFAULT_CHANNELS, write_run_videos
-from surgsplat.train.run import TrainedRun, load_trained_run, run_lock
+from surgsplat.pipeline.run_folders import claim_output_folder, load_run
+from surgsplat.train.run import TrainedRun, run_lock
 
 MAX_FPS = 1000.0
 """Largest --fps accepted."""
@@ -58,7 +59,9 @@ def write_videos_with_progress(run: TrainedRun, out_dir: Path, fps: float,
 
 def render_command(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `surgsplat train`.")],
-    out: Annotated[Path | None, typer.Option(help="Video folder (default RUN/videos).")] = None,
+    out: Annotated[Path | None, typer.Option(
+        help="Video folder (default RUN/videos): a new or empty one, or one surgsplat wrote "
+             "videos or exports into before.")] = None,
     fps: Annotated[float, typer.Option(help="Frames per second of the videos.")] = 15.0,
     data: Annotated[Path | None, typer.Option(
         help="Scene folder (default: the run's; its content must be the run's scene).")] = None,
@@ -81,12 +84,14 @@ def render_command(
         raise SurgsplatError(f"--fps must be a number in (0, {MAX_FPS:g}], got {fps}")
     names = parse_channels(channels)
     with run_lock(run_dir):
-        run = load_trained_run(run_dir, data)
+        run = load_run(run_dir, data)
         if tool_free and not run.model.separates_tool:
             raise SurgsplatError(f"--tool-free: method {run.config.name!r} of {run_dir} has no "
                                  "tool field to leave out (train e.g. --method physiosplat)")
-        default = run_dir / ("videos_tool_free" if tool_free else "videos")
+        folder = out or run_dir / ("videos_tool_free" if tool_free else "videos")
         source = parse_relight(relight, len(run.scene.frames))
-        paths = write_videos_with_progress(run, out or default, fps, names, source,
+        claim_output_folder(folder, run_dir, "--out",
+                            "render writes " + ", ".join(f"{name}.mp4" for name in names))
+        paths = write_videos_with_progress(run, folder, fps, names, source,
                                            tissue_only=tool_free)
     Console().print("videos: " + ", ".join(str(p) for p in paths))

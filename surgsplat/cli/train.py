@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
@@ -12,10 +14,13 @@ from rich.progress import TextColumn
 from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.config import MethodConfig
-from surgsplat.methods.overrides import method_from_values, parse_assignment, read_config_file
+from surgsplat.methods.overrides import (dotted_keys, method_from_values, parse_assignment,
+                                         read_config_file)
+from surgsplat.methods.ranges import check_config
 from surgsplat.methods.registry import PRESETS, method_config
 from surgsplat.pipeline.train import after_training, check_new_run_folder, fit, start_training
-from surgsplat.train.run import read_run_config, run_lock
+from surgsplat.train.checkpoint import has_checkpoint
+from surgsplat.train.run import LOCK_FILE, read_run_config, run_lock
 from surgsplat.train.trainer import CHECKPOINT, StepStats, Trainer
 
 
@@ -48,10 +53,27 @@ def train_with_progress(config: MethodConfig, data: Path | None, out: Path, resu
     return trainer
 
 
+RUN_LENGTH_KEYS = {"train.iterations", "train.budget_seconds"}
+"""The settings that give a run's length, as --iters and --budget do."""
+
+
+def check_length_given_once(iters: int | None, budget: float | None,
+                            assignments: list[str]) -> None:
+    """SurgsplatError naming both when --iters or --budget gives the run's length and another
+    of them, or a `--set` of RUN_LENGTH_KEYS, gives it too (several `--set`s apply in order)."""
+    options = [f"{name} {value:g}" for name, value in (("--iters", iters), ("--budget", budget))
+               if value is not None]
+    given = options + [f"--set {text}" for text in assignments
+                       if dotted_keys(parse_assignment(text)) & RUN_LENGTH_KEYS]
+    if options and len(given) > 1:
+        raise SurgsplatError(f"{given[0]} and {given[1]} each set the run's length: give one")
+
+
 def build_method_config(method: str | None, config_file: Path | None,
                         assignments: list[str]) -> MethodConfig:
     """The preset `method` (default deform3dgs, or the one `config_file` names), with the file's
-    values and then each `KEY=VALUE` assignment applied, type-checked."""
+    values and then each `KEY=VALUE` assignment applied, type-checked; the rules between fields
+    (`check_config`) are checked once all are in."""
     values = read_config_file(config_file) if config_file is not None else {}
     name = values.get("name", method) or "deform3dgs"
     if method is not None and name != method:
@@ -60,7 +82,23 @@ def build_method_config(method: str | None, config_file: Path | None,
     config = method_from_values(values, method_config(name), str(config_file or "config"))
     for text in assignments:
         config = method_from_values(parse_assignment(text), config, where="--set")
+    check_config(config)
     return config
+
+
+@contextmanager
+def new_run_folder(out: Path) -> Iterator[None]:
+    """Own `out` (`run_lock`, creating it) for a new run while the block runs, once sure that it
+    may receive one (`check_new_run_folder`). The folder is checked with the lock held, so that
+    a run started there at the same instant is reported as the lock's holder rather than as
+    files of the user's; and before, unless it holds a lock file already, so that no lock file
+    is left in a folder of the user's."""
+    if not (out / LOCK_FILE).exists():
+        check_new_run_folder(out)
+    with run_lock(out, create=True):
+        if any(entry.name != LOCK_FILE for entry in out.iterdir()):
+            check_new_run_folder(out)
+        yield
 
 
 def train_command(
@@ -69,7 +107,8 @@ def train_command(
              f"methods`).")] = None,
     data: Annotated[Path | None, typer.Option(help="EndoNeRF-layout scene folder.")] = None,
     out: Annotated[Path, typer.Option(help="Run folder to write.")] = Path("runs/latest"),
-    iters: Annotated[int | None, typer.Option(help="Number of iterations (preset default if "
+    iters: Annotated[int | None, typer.Option(help="Number of iterations (train.iterations; "
+                                                     "the preset's or --config file's if "
                                                      "omitted).")] = None,
     budget: Annotated[float | None, typer.Option(
         help="Train for this many seconds instead of a number of iterations: the schedule is "
@@ -91,7 +130,7 @@ def train_command(
         if not out.is_dir():
             raise SurgsplatError(f"{out / CHECKPOINT}: nothing to resume (no run folder {out})")
         with run_lock(out):
-            if not (out / CHECKPOINT).is_file():
+            if not has_checkpoint(out / CHECKPOINT):
                 raise SurgsplatError(f"{out / CHECKPOINT}: nothing to resume (no checkpoint in "
                                      f"{out})")
             saved = read_run_config(out)
@@ -100,13 +139,11 @@ def train_command(
                                      "not apply to it")
             train_with_progress(saved, data, out, resume, iters)
         return
-    if budget is not None and iters is not None:
-        raise SurgsplatError("--budget and --iters each set the run's length: give one")
+    check_length_given_once(iters, budget, set_ or [])
     new_config = build_method_config(method, config, set_ or [])
     if budget is not None:
         new_config.train.budget_seconds = budget
     if data is None:
         raise SurgsplatError("--data is required unless --resume continues a run")
-    check_new_run_folder(out)
-    with run_lock(out, create=True):
+    with new_run_folder(out):
         train_with_progress(new_config, data, out, resume, iters)

@@ -35,8 +35,7 @@ def view_command(
     if height is not None and not 0 < height <= MAX_HEIGHT:
         raise SurgsplatError(f"--height must be in 1..{MAX_HEIGHT} pixels, got {height}")
     viewer = RunViewer(load_trained_run(run_dir), host=host, port=port, height=height)
-    Console().print(f"viewer at http://{host}:{viewer.server.get_port()} (Ctrl-C stops it)",
-                    highlight=False)
+    Console().print(f"viewer at {viewer.url} (Ctrl-C stops it)", highlight=False)
     try:
         threading.Event().wait()
     except KeyboardInterrupt:

@@ -9,30 +9,40 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from fnmatch import fnmatchcase
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from surgsplat.data.layout import (IMAGE_SUFFIXES, name_numbers,  # noqa: F401 (re-exported)
-                                   natural_key)
+from surgsplat.data.layout import name_numbers  # noqa: F401 (re-exported)
+from surgsplat.data.layout import IMAGE_SUFFIXES, list_files, not_a_file_problem
 from surgsplat.data.scene import native_stderr_to, read_image
 from surgsplat.errors import DataError
 
+PIPE_ADVICE = ("which can be read only once, but import reads a video several times; save the "
+               "stream to a file and import that")
+"""Why a pipe cannot be a source, and what to do instead."""
+
+
 def list_frame_files(folder: Path, pattern: str | None, what: str = "frame") -> list[Path]:
-    """Files of `folder` matching the glob `pattern` (default: any image file), sorted naturally."""
+    """Files of `folder` matching the glob `pattern` (default: any image file), sorted naturally
+    (`list_files`, which names any entry of such a name that is not a file)."""
     if not folder.is_dir():
         raise DataError(folder, f"is not a folder of {what} images")
-    if pattern is None:
-        files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
-        wanted = f"image files ({', '.join(IMAGE_SUFFIXES)})"
-    else:
-        files = [p for p in folder.iterdir() if p.is_file() and fnmatchcase(p.name, pattern)]
-        wanted = f"files matching {pattern!r}"
+    files = list_files(folder, IMAGE_SUFFIXES, pattern)
     if not files:
+        wanted = (f"image files ({', '.join(IMAGE_SUFFIXES)})" if pattern is None
+                  else f"files matching {pattern!r}")
         raise DataError(folder, f"holds no {what} {wanted}")
-    return sorted(files, key=natural_key)
+    return files
+
+
+def source_problem(path: Path) -> str:
+    """Why `path`, neither a folder nor a regular file, cannot be a video or a folder of
+    frames (`not_a_file_problem`, with advice for a pipe)."""
+    if path.is_fifo():
+        return f"{not_a_file_problem(path)}, {PIPE_ADVICE}"
+    return f"{not_a_file_problem(path)}: expected a video file or a folder of frames"
 
 
 class FrameSource:
@@ -50,8 +60,7 @@ class FrameSource:
                                            "of frames")
             self.count = self._video_frame_count()
         else:
-            raise DataError(self.path, "does not exist: expected a video file or a folder of "
-                                       "frames")
+            raise DataError(self.path, source_problem(self.path))
 
     @property
     def is_video(self) -> bool:

@@ -21,8 +21,16 @@ principal point not given is the image centre. Given principal points follow Ope
 centres at integers) and are stored in surgsplat's convention (+ 0.5).
 
 Frames come in this order: frame range and stride on the source's frames, then frames without
-a mask are dropped (only if allowed), then every frame is resized. Stereo runs on the resized,
-rectified pair; fx and cx scale with the image width, fy and cy with its height.
+a mask are dropped (only if allowed), then every frame is resized (to between MIN_SIZE x
+MIN_SIZE and MAX_FRAME_PIXELS). Stereo runs on the resized, rectified pair; fx and cx scale with
+the image width, fy and cy with its height.
+
+What import writes is checked as the scene loader will check it, and named by its source: a
+tool mask (given or derived) must leave tissue in view, depth beyond the 16-bit range or
+`max_depth` is stored as unknown, and a derived product (tool masks from a segmenter, depth
+from stereo, shading or a network, disparity) without content on every frame (no tool pixel,
+no valid depth or disparity pixel) stops the import, naming the model file, the right camera or
+the frames it came from, before the scene is called done.
 """
 
 from __future__ import annotations
@@ -42,15 +50,17 @@ from surgsplat.data.auto_tool_masks import (CONFIDENCE_MEANING, AutoMask, AutoMa
 from surgsplat.data.calibration import read_calibration
 from surgsplat.data.fov_mask import FovConfig, FovEstimate, brightness, estimate_fov
 from surgsplat.data.frames_source import FrameSource, list_frame_files
-from surgsplat.data.layout import Intrinsics, SceneMeta, SceneWriter, frame_stem, write_image
+from surgsplat.data.layout import (MAX_FRAME_PIXELS, Intrinsics, SceneMeta, SceneWriter,
+                                   frame_stem, max_depth, write_image)
 from surgsplat.data.learned_priors import (DepthNetworkConfig, ToolSegmenterConfig,
                                            model_tool_masks, network_depth)
 from surgsplat.data.onnx_models import OnnxModel
+from surgsplat.data.scene import MIN_SIZE, check_tissue_visible, read_tool_mask
 from surgsplat.data.sfm_poses import SfmConfig, SfmWorkspace, require_pycolmap
 from surgsplat.data.shading_depth import ShadingDepthConfig, shading_depth
 from surgsplat.data.sparse_points import write_sparse_points
 from surgsplat.data.stereo import StereoConfig, disparity_to_depth, stereo_disparity
-from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
+from surgsplat.data.tool_masks import match_masks, resolve_mask_match
 from surgsplat.errors import DataError, SurgsplatError
 
 DISPARITY_DIR = "disparity"
@@ -170,8 +180,8 @@ class ImportConfig:
             raise SurgsplatError("give either --resize or --scale, not both")
         if self.resize is not None and min(self.resize) <= 0:
             raise SurgsplatError(f"--resize needs a positive width and height, got {self.resize}")
-        if self.scale is not None and self.scale <= 0:
-            raise SurgsplatError(f"--scale must be positive, got {self.scale}")
+        if self.scale is not None and not 0 < self.scale < math.inf:
+            raise SurgsplatError(f"--scale must be a positive finite number, got {self.scale}")
         self._validate_camera()
         if not 0 < self.assumed_hfov_deg < 180:
             raise SurgsplatError(f"the assumed field of view must be in (0, 180) degrees, got "
@@ -252,10 +262,10 @@ class ImportConfig:
                                      f"1/{DISPARITY_STEPS} px; search at most "
                                      f"{65535 // DISPARITY_STEPS} px")
             return
-        if self.baseline is None or self.baseline <= 0 or not self.knows_focal:
+        if self.baseline is None or not 0 < self.baseline < math.inf or not self.knows_focal:
             raise SurgsplatError("depth from stereo needs --focal, --fx/--fy or --calibration "
-                                 "(of the rectified left camera) and a positive --baseline; or "
-                                 "pass --disparity-only")
+                                 "(of the rectified left camera) and a positive finite "
+                                 "--baseline; or pass --disparity-only")
 
 
 def import_scene(source: str | Path, out_dir: str | Path, config: ImportConfig,
@@ -358,6 +368,8 @@ def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
         selected = [i for i in selected if mask_of[i] is not None]
         if not selected:
             raise DataError(config.masks, "has a mask for none of the selected frames")
+        first_mask = mask_of[selected[0]]
+        check_tissue_visible(read_tool_mask(first_mask, config.tool_labels), None, first_mask)
     _, first = next(frames.read(selected[:1]))
     source_size = first.shape[:2]  # (H, W)
     out_size = _output_size(source_size, config)
@@ -420,16 +432,24 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         learned_depth = plan.depth_model.run(
             (image for _, image, _ in ahead),
             lambda done: report("depth network", done, len(plan.selected)))
+    products = _DerivedProducts.of(plan, config)
+    fov = None if outside is None else ~outside  # [H, W] bool as the scene will load it
+    depth_limit = min(65535 * depth_scale, max_depth(meta.depth_unit))
     for done, ((index, image, right_image), tool, network_output) in enumerate(
             zip(fitted, automatic, learned_depth), 1):
         if plan.mask_of is not None:
             mask_path = plan.mask_of[index]
-            tool = fit.mask(read_tool_labels(mask_path, config.tool_labels), mask_path)
+            tool = fit.mask(read_tool_mask(mask_path, config.tool_labels), mask_path)
+            check_tissue_visible(tool, fov, mask_path)
+        elif tool is not None:
+            check_tissue_visible(tool, fov, products.masks.source)
+            products.masks.count(tool.any())
         depth = None
         if right is not None:
             right_image = fit(right_image, right.frame_path(index), right.frame_label(index))
             disparity = stereo_disparity(image, right_image, config.stereo)  # [H, W] px
             if config.disparity_only:
+                products.disparity.count((disparity > 0).any())
                 stored = np.rint(disparity * DISPARITY_STEPS).astype(np.uint16)
                 disparity_path = out_dir / DISPARITY_DIR / f"{frame_stem(writer.count)}.png"
                 write_image(disparity_path, stored)
@@ -445,9 +465,12 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
             depth = (shading_depth(image, plan.intrinsics, excluded, config.shading)
                      if network_output is None else
                      network_depth(network_output, excluded, config.depth_network))
-            depth[depth > 65535 * depth_scale] = 0.0  # beyond the 16-bit range: unknown
+        if depth is not None:
+            depth[depth > depth_limit] = 0.0  # beyond the 16-bit range or MAX_DEPTH_MM: unknown
+            products.depth.count((depth > 0).any())
         writer.add_frame(image, depth, tool)
         report("import", done, len(plan.selected))
+    products.check()
     meta.extra = _provenance(plan, config, confidences)
     if sfm is not None:
         poses = sfm.solve(report)
@@ -456,6 +479,78 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         write_sparse_points(out_dir, poses.points, poses.colors)
         meta.extra["poses"] = poses.describe(config.sfm)
     return writer.finish()
+
+
+@dataclass
+class _DerivedProduct:
+    """A product that import derives for every frame (depth, disparity or tool masks), with
+    the number of frames on which it had content (a valid depth or disparity pixel, a tool
+    pixel) so far."""
+
+    source: Path
+    """What derives it, named by the error: a model file, the right camera, the frames."""
+    problem: str
+    """What it means when no frame had content: the error's text."""
+    frames: int = 0
+    """Frames on which it had content so far."""
+
+    def count(self, has_content: bool) -> None:
+        """Count one more frame, with content or not."""
+        self.frames += bool(has_content)
+
+    def check(self) -> None:
+        """DataError naming the source when no frame had content."""
+        if self.frames == 0:
+            raise DataError(self.source, self.problem)
+
+
+@dataclass
+class _DerivedProducts:
+    """The products an import derives (None: not derived; tool masks from label files are
+    given, not derived), each validated for content over the whole clip (`_DerivedProduct`)
+    before the scene is called done."""
+
+    masks: _DerivedProduct | None = None
+    depth: _DerivedProduct | None = None
+    disparity: _DerivedProduct | None = None
+
+    @staticmethod
+    def of(plan: _Plan, config: ImportConfig) -> "_DerivedProducts":
+        """The products `config` derives from the frames of `plan`, with their sources."""
+        count = len(plan.selected)
+        products = _DerivedProducts()
+        if plan.tool_model is not None:
+            products.masks = _DerivedProduct(
+                plan.tool_model.path, f"found no tool pixel in any of the {count} frames: "
+                "check --tool-segmenter-output, the threshold and the model's mean and std")
+        elif config.auto_tool_masks:
+            products.masks = _DerivedProduct(
+                plan.frames.path, f"shows no tool to the automatic tool segmenter in any of "
+                f"its {count} frames; import it without --auto-tool-masks")
+        if config.right is not None:
+            matched = _DerivedProduct(
+                config.right, f"matches no pixel of {plan.frames.path} in any of the {count} "
+                "frames (no valid disparity): is it the other camera of a rectified pair, and "
+                "not the same images again?")
+            if config.disparity_only:
+                products.disparity = matched
+            else:
+                products.depth = matched
+        elif plan.depth_model is not None:
+            products.depth = _DerivedProduct(
+                plan.depth_model.path, f"gave no valid depth (an output that is positive and "
+                f"finite) on any of the {count} frames: check --depth-model-output and the "
+                "model's mean and std")
+        elif config.depth == "shading":
+            products.depth = _DerivedProduct(
+                plan.frames.path, f"gives no shading depth on any of its {count} frames")
+        return products
+
+    def check(self) -> None:
+        """DataError naming the source of the first product without content on every frame."""
+        for product in (self.masks, self.depth, self.disparity):
+            if product is not None:
+                product.check()
 
 
 def _recording_confidence(results: Iterator[AutoMask], confidences: list[float]
@@ -491,20 +586,26 @@ def _pair_masks(frames: FrameSource, config: ImportConfig) -> list[Path | None] 
 
 
 def _output_size(source_size: tuple[int, int], config: ImportConfig) -> tuple[int, int]:
-    """(H, W) of the written frames."""
+    """(H, W) of the written frames: the source size, or the size --scale or --resize asks
+    for, which must lie between MIN_SIZE x MIN_SIZE and MAX_FRAME_PIXELS."""
     height, width = source_size
     if config.scale is not None:
+        option = f"--scale {config.scale:g}"
         out_w, out_h = round(width * config.scale), round(height * config.scale)
-        if min(out_w, out_h) < 1:
-            raise SurgsplatError(f"--scale {config.scale} leaves no pixel of {width}x{height}")
-        return out_h, out_w
-    if config.resize is None:
+    elif config.resize is not None:
+        option = f"--resize {config.resize[0]}x{config.resize[1]}"
+        out_w, out_h = config.resize
+        if abs((out_w / out_h) / (width / height) - 1) > 0.01:
+            raise SurgsplatError(f"{option} changes the aspect ratio of the {width}x{height} "
+                                 "frames, which would stretch them; keep the ratio (e.g. use "
+                                 "--scale)")
+    else:
         return source_size
-    out_w, out_h = config.resize
-    if abs((out_w / out_h) / (width / height) - 1) > 0.01:
-        raise SurgsplatError(f"--resize {out_w}x{out_h} changes the aspect ratio of the "
-                             f"{width}x{height} frames, which would stretch them; keep the "
-                             "ratio (e.g. use --scale)")
+    if min(out_w, out_h) < MIN_SIZE or out_w * out_h > MAX_FRAME_PIXELS:
+        side = math.isqrt(MAX_FRAME_PIXELS)
+        raise SurgsplatError(f"{option} makes the {width}x{height} frames {out_w}x{out_h}; "
+                             f"frames must be at least {MIN_SIZE}x{MIN_SIZE} and at most "
+                             f"{MAX_FRAME_PIXELS:,} pixels ({side}x{side})")
     return out_h, out_w
 
 

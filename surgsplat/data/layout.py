@@ -45,12 +45,17 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
+import stat
 from dataclasses import asdict, dataclass, field
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from surgsplat.errors import DataError
 
 IMAGES_DIR = "images"
 DEPTH_DIR = "depth"
@@ -66,6 +71,18 @@ TOOL_VALUE = 255
 """Value of a tool pixel in a mask file on disk."""
 INSIDE_VALUE = 255
 """Value of a pixel inside the field of view in fov_mask.png."""
+MAX_FRAME_PIXELS = 4096 * 4096
+"""Largest frame, in pixels, that surgsplat makes by resizing (`import --scale`, `--resize`, an
+ONNX model's input size): 4096 x 4096, above 4K UHD (3840 x 2160). Each decoded frame with its
+depth and masks takes some 19 bytes a pixel in memory (over 300 MB at this size), and
+training renders every frame at its full size."""
+MAX_DEPTH_MM = 10_000.0
+"""Largest depth a depth frame may hold, in millimetres: 10 m, some thirty times the depth of an
+insufflated abdomen (about 300 mm), so a larger value is a unit or scale error (a wrong
+depth_scale, depth stored in micrometres), not something an endoscope saw. `max_depth` gives
+it in a scene's unit."""
+MILLIMETRES_PER_UNIT = {"um": 1e-3, "mm": 1.0, "cm": 10.0, "m": 1000.0}
+"""Millimetres in one depth unit, for the metric units a scene.json may name."""
 LLFF_TO_OPENCV = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 """Q of the module doc: LLFF (down, right, backwards) axes to OpenCV (right, down, forward)."""
 
@@ -129,11 +146,9 @@ class SceneMeta:
 
     @staticmethod
     def read(path: Path) -> "SceneMeta":
-        from surgsplat.errors import DataError
-
         try:
             raw = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as err:
+        except (OSError, ValueError) as err:  # ValueError: not JSON, or not UTF-8 text
             raise DataError(path, f"cannot read scene metadata as JSON ({err})") from err
         if not isinstance(raw, dict):
             raise DataError(path, "expected a JSON object with depth_unit / depth_scale")
@@ -156,8 +171,6 @@ class SceneMeta:
 
 
 def _read_intrinsics(path: Path, raw: object) -> Intrinsics:
-    from surgsplat.errors import DataError
-
     keys = ("fx", "fy", "cx", "cy")
     if not isinstance(raw, dict) or set(raw) != set(keys):
         raise DataError(path, f"intrinsics must be an object with exactly the keys fx, fy, cx, "
@@ -168,6 +181,13 @@ def _read_intrinsics(path: Path, raw: object) -> Intrinsics:
     except ValueError as err:
         raise DataError(path, f"intrinsics: {err}") from None
     return intrinsics
+
+
+def max_depth(unit: str) -> float:
+    """MAX_DEPTH_MM in the depth unit `unit` (one of MILLIMETRES_PER_UNIT); any other unit
+    (unknown, relative) counts as millimetres, the scale of the depth surgsplat assumes without
+    metric depth (50 scene units)."""
+    return MAX_DEPTH_MM / MILLIMETRES_PER_UNIT.get(unit, 1.0)
 
 
 def frame_stem(index: int) -> str:
@@ -189,11 +209,42 @@ def name_numbers(path: Path) -> tuple[int, ...]:
     return tuple(int(run) for run in _DIGITS.findall(path.stem))
 
 
-def list_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
-    """Files of `folder` with one of `suffixes` (case-insensitive), in natural order
-    (`natural_key`)."""
-    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes),
-                  key=natural_key)
+def list_files(folder: Path, suffixes: tuple[str, ...], pattern: str | None = None
+               ) -> list[Path]:
+    """Files of `folder` whose names match the glob `pattern`, or without one end in one of
+    `suffixes` (case-insensitive), in natural order (`natural_key`). Sub-folders are passed
+    over; any other entry of such a name (a broken or looping symbolic link, a pipe, a device)
+    is a DataError naming it, since passing over a frame would shift every later one in time."""
+    files = []
+    for path in folder.iterdir():
+        if not (fnmatchcase(path.name, pattern) if pattern is not None
+                else path.suffix.lower() in suffixes):
+            continue
+        if path.is_file():
+            files.append(path)
+        elif not path.is_dir():
+            raise DataError(path, f"{not_a_file_problem(path)}: expected a frame file of "
+                                  f"{folder}")
+    return sorted(files, key=natural_key)
+
+
+def not_a_file_problem(path: Path) -> str:
+    """What `path`, which is neither a regular file nor a folder, is instead, for a message:
+    missing, a broken or looping symbolic link, a pipe, a device or a socket."""
+    try:
+        mode = path.stat().st_mode
+    except OSError as err:
+        if path.is_symlink():
+            return (f"is a symbolic link to {os.readlink(path)} that leads to no file "
+                    f"({err.strerror})")
+        return "does not exist"
+    if stat.S_ISFIFO(mode):
+        return "is a pipe (a FIFO, or a process substitution such as <(cat video.mp4))"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "is a device, not a regular file"
+    if stat.S_ISSOCK(mode):
+        return "is a socket, not a regular file"
+    return "is not a regular file"
 
 
 def write_image(path: Path, pixels: np.ndarray) -> None:

@@ -24,13 +24,15 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import ClassVar, Literal
 
 import numpy as np
 from scipy.special import logit
 
+from surgsplat.data.layout import MAX_DEPTH_MM
 from surgsplat.data.onnx_models import ModelInput, OnnxModel
-from surgsplat.errors import SurgsplatError
+from surgsplat.errors import DataError, SurgsplatError
 
 TOOL_OUTPUTS = ("logits", "probability")
 """What a tool segmenter's output map holds."""
@@ -93,9 +95,9 @@ class DepthNetworkConfig(ModelConfig):
 
     def validate(self) -> None:
         super().validate()
-        if not self.median_depth > 0:
-            raise SurgsplatError(f"the depth network's median depth must be positive, got "
-                                 f"{self.median_depth}")
+        if not 0 < self.median_depth <= MAX_DEPTH_MM:
+            raise SurgsplatError(f"the depth network's median depth must be positive and at "
+                                 f"most {MAX_DEPTH_MM:g}, got {self.median_depth}")
 
 
 def model_tool_masks(model: OnnxModel, frames: Iterable[np.ndarray], fov: np.ndarray | None,
@@ -103,11 +105,30 @@ def model_tool_masks(model: OnnxModel, frames: Iterable[np.ndarray], fov: np.nda
                      advance: Callable[[int], None] | None = None) -> Iterator[np.ndarray]:
     """bool [H, W] tool mask of each uint8 RGB frame [H, W, 3], in order: probability >=
     threshold inside the field of view `fov` (bool [H, W], None = whole frame). Logits are
-    compared with logit(threshold), which is the same test without a sigmoid per pixel."""
+    compared with logit(threshold), which is the same test without a sigmoid per pixel.
+    DataError naming the model for an output outside its range (`check_tool_output`)."""
     cut = logit(config.threshold) if config.output == "logits" else config.threshold
-    for output in model.run(frames, advance):
+    for index, output in enumerate(model.run(frames, advance)):
+        check_tool_output(output, model.path, index, config.output)
         mask = output >= cut
         yield mask if fov is None else mask & fov
+
+
+PROBABILITY_TOLERANCE = 1e-3
+"""How far a probability output may stray outside [0, 1] (float rounding of a sigmoid)."""
+
+
+def check_tool_output(output: np.ndarray, model: Path, index: int, kind: str) -> None:
+    """DataError naming the tool segmenter `model` unless its output map [H, W] for frame
+    `index` holds no NaN and, for kind "probability", only values in [0, 1]."""
+    if np.isnan(output).any():
+        raise DataError(model, f"gave NaN for {np.isnan(output).mean():.0%} of the pixels of "
+                               f"frame {index}: expected the tool's {kind} at every pixel")
+    if kind == "probability" and not (-PROBABILITY_TOLERANCE <= output.min()
+                                      and output.max() <= 1 + PROBABILITY_TOLERANCE):
+        raise DataError(model, f"gave values from {output.min():g} to {output.max():g} for "
+                               f"frame {index}, outside the [0, 1] of a probability: does it "
+                               "give logits? (--tool-segmenter-output logits)")
 
 
 def network_depth(output: np.ndarray, exclude: np.ndarray | None,

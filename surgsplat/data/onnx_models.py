@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 import torch
 
+from surgsplat.data.layout import MAX_FRAME_PIXELS
 from surgsplat.errors import DataError, SurgsplatError
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
@@ -80,9 +81,10 @@ class ModelInput:
             raise SurgsplatError(f"a model's input size, short side, multiple and batch must be "
                                  f"positive, got size {self.size}, short side {self.short_side}, "
                                  f"multiple {self.multiple}, batch {self.batch}")
-        if len(self.mean) != 3 or len(self.std) != 3 or min(self.std) <= 0:
-            raise SurgsplatError(f"a model's mean and std take 3 values (R, G, B), std positive; "
-                                 f"got mean {self.mean} and std {self.std}")
+        if (len(self.mean) != 3 or len(self.std) != 3 or not np.isfinite(self.mean).all()
+                or not (0 < np.asarray(self.std)).all() or not np.isfinite(self.std).all()):
+            raise SurgsplatError(f"a model's mean and std take 3 finite values (R, G, B), std "
+                                 f"positive; got mean {self.mean} and std {self.std}")
 
     def input_size(self, frame_size: tuple[int, int]) -> tuple[int, int]:
         """(h, w) of the input for frames of `frame_size` (H, W) when the model fixes neither."""
@@ -93,7 +95,12 @@ class ModelInput:
             factor = self.short_side / min(height, width)
             height, width = height * factor, width * factor
         step = self.multiple
-        return max(step, round(height / step) * step), max(step, round(width / step) * step)
+        size = max(step, round(height / step) * step), max(step, round(width / step) * step)
+        if size[0] * size[1] > MAX_FRAME_PIXELS:
+            raise SurgsplatError(f"a model input of {size[1]}x{size[0]} (from the input size, "
+                                 f"short side and multiple asked for) exceeds "
+                                 f"{MAX_FRAME_PIXELS:,} pixels")
+        return size
 
 
 def _onnxruntime():

@@ -35,9 +35,9 @@ from torch import Tensor
 from surgsplat.data.frame_store import CACHE_BYTES, FramePixels, FrameStore
 from surgsplat.data.image_files import check_image_file
 from surgsplat.data.layout import (DEPTH_DIR, DEPTH_SUFFIXES, FOV_FILE, IMAGE_SUFFIXES,
-                                   IMAGES_DIR, INSIDE_VALUE, MASKS_DIR, META_FILE, POSES_FILE,
-                                   TOOL_VALUE, Intrinsics, SceneMeta, list_files,
-                                   world_to_camera_from_llff)
+                                   IMAGES_DIR, INSIDE_VALUE, MASKS_DIR, MAX_DEPTH_MM, META_FILE,
+                                   POSES_FILE, Intrinsics, SceneMeta, list_files, max_depth,
+                                   not_a_file_problem, world_to_camera_from_llff)
 from surgsplat.errors import DataError, SurgsplatError
 
 TEST_EVERY = 8
@@ -304,24 +304,49 @@ def _redirected_stderr(sink: list[str]) -> Iterator[None]:
 
 
 def verify_image_file(path: Path, what: str) -> None:
-    """Decode the whole of an image file strictly (Pillow with truncated images refused; TIFF
-    by tifffile): DataError naming the file when it is missing, truncated or corrupt, so no
-    partly decoded (grey-filled) frame is ever used."""
+    """Decode the whole of an image file strictly (Pillow with truncated images refused; a TIFF
+    by tifffile, or by Pillow when its compression needs a codec tifffile lacks, such as the
+    LZW that OpenCV writes): DataError naming the file when it is missing, truncated or
+    corrupt, so no partly decoded (grey-filled) frame is ever used."""
     if not path.is_file():
         raise DataError(path, f"missing: expected {what}")
     if path.stat().st_size == 0:
         raise DataError(path, f"is empty (0 bytes): expected {what}")
+    problem = "truncated or corrupt"
     try:
-        if path.suffix.lower() in (".tif", ".tiff"):
+        if path.suffix.lower() not in (".tif", ".tiff"):
+            _decode_with_pillow(path)
+            return
+        missing_codec = _tiff_codec_missing(path)
+        if missing_codec is None:
             tifffile.imread(path)
             return
-        ImageFile.LOAD_TRUNCATED_IMAGES = False
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # decoder notes; any real fault raises below
-            with Image.open(path) as image:
-                image.load()
+        problem = (f"its {missing_codec} compression needs the imagecodecs package for "
+                   "tifffile, and Pillow failed on it too")
+        _decode_with_pillow(path)
     except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError) as err:
-        raise DataError(path, f"cannot be read as {what}: truncated or corrupt ({err})") from None
+        raise DataError(path, f"cannot be read as {what}: {problem} ({err})") from None
+
+
+def _tiff_codec_missing(path: Path) -> str | None:
+    """The name of the first compression of a TIFF file that tifffile cannot decode here (it
+    needs the imagecodecs package for LZW, JPEG and others), None when it can decode them all;
+    a ValueError for a file that is no TIFF."""
+    with tifffile.TiffFile(path) as tiff:
+        for page in tiff.pages:
+            if page.compression not in tifffile.TIFF.DECOMPRESSORS:
+                return page.compression.name
+    return None
+
+
+def _decode_with_pillow(path: Path) -> None:
+    """Decode the whole of an image file with Pillow, truncated images refused; what its
+    native decoders print is dropped (a fault raises)."""
+    ImageFile.LOAD_TRUNCATED_IMAGES = False
+    with warnings.catch_warnings(), native_stderr_to([]):
+        warnings.simplefilter("ignore")  # decoder notes; any real fault raises
+        with Image.open(path) as image:
+            image.load()
 
 
 def decode_image(path: Path, what: str) -> np.ndarray:
@@ -368,8 +393,10 @@ def read_image(path: Path) -> np.ndarray:
     return np.ascontiguousarray(raw[..., ::-1])
 
 
-def read_depth(path: Path, depth_scale: float) -> np.ndarray:
-    """A depth file as float32 [H, W] in scene units (stored integers x depth_scale for images)."""
+def read_depth(path: Path, depth_scale: float, limit: float = MAX_DEPTH_MM) -> np.ndarray:
+    """A depth file as float32 [H, W] in scene units (stored integers x depth_scale for images);
+    DataError naming the file unless every value is finite and in [0, limit] (`max_depth` of
+    the scene's unit; 0 = no depth)."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".npy":
@@ -400,30 +427,69 @@ def read_depth(path: Path, depth_scale: float) -> np.ndarray:
         raise DataError(path, "depth holds NaN or infinite values")
     if (depth < 0).any():
         raise DataError(path, f"depth holds negative values (min {depth.min():g})")
+    if (depth > limit).any():
+        stored = ("" if suffix in (".npy", ".npz") else
+                  " (image depth is the stored integer x depth_scale of scene.json)")
+        raise DataError(path, f"depth reaches {depth.max():g}, beyond {limit:g}, "
+                              f"{MAX_DEPTH_MM / 1000:g} m in the scene's depth unit, more than "
+                              f"an endoscope sees: a unit or scale error?{stored}")
     return depth
 
 
-def read_tool_mask(path: Path) -> np.ndarray:
-    """A tool mask file as bool [H, W], True = tool (stored as 255; any value > 127 is tool)."""
-    return _read_binary_mask(path, TOOL_VALUE)
+CLASS_ID_HINT = ("; class-ID masks are imported with their tool classes: surgsplat import "
+                 "--masks DIR --tool-labels IDS")
+"""What to do with class-ID masks where binary ones were expected."""
+
+
+def read_tool_mask(path: Path, tool_labels: tuple[int, ...] | None = None,
+                   lossy: bool = False) -> np.ndarray:
+    """A tool mask file as bool [H, W], True = tool: the one reader of tool masks, for the
+    label images `import` is given and for a scene's masks/ alike.
+
+    tool_labels None: a binary mask (`read_binary_mask`, with `lossy`; a scene's masks/ store
+    TOOL_VALUE = tool). Otherwise a class-ID mask, one integer class per pixel in one channel
+    or in three equal ones, whose pixels in `tool_labels` are tool."""
+    if tool_labels is None:
+        return read_binary_mask(path, "a tool mask", CLASS_ID_HINT, lossy)
+    raw = decode_image(path, "a class-ID mask")
+    if raw.ndim == 3:
+        raw = raw[..., :3]
+        if not (raw == raw[..., :1]).all():
+            raise DataError(path, "has differing colour channels, but class-ID masks hold one ID "
+                                  "per pixel (one channel or three equal ones); is this a "
+                                  "colour-coded mask? choose the ID masks with --mask-pattern")
+        raw = raw[..., 0]
+    return np.isin(raw, np.asarray(tool_labels))
 
 
 def read_fov_mask(path: Path) -> np.ndarray:
-    """fov_mask.png as bool [H, W], True = inside the field of view (stored as 255)."""
-    inside = _read_binary_mask(path, INSIDE_VALUE)
+    """fov_mask.png as bool [H, W], True = inside the field of view (`read_binary_mask`;
+    surgsplat stores 255 = inside)."""
+    inside = read_binary_mask(path, "a field-of-view mask")
     if not inside.any():
         raise DataError(path, f"marks no pixel as inside the field of view (expected "
                               f"{INSIDE_VALUE} = inside, 0 = outside)")
     return inside
 
 
-def _read_binary_mask(path: Path, on_value: int) -> np.ndarray:
-    """bool [H, W]: 8-bit values above on_value / 2 (other depths: above half the maximum)."""
-    raw = decode_image(path, "a mask image")
-    if raw.ndim == 3:
-        raw = raw[..., 0]
-    threshold = on_value // 2 if raw.dtype == np.uint8 else raw.max(initial=0) // 2
-    return raw > threshold
+def read_binary_mask(path: Path, what: str, hint: str = "", lossy: bool = False) -> np.ndarray:
+    """A binary mask file as bool [H, W], True where it is on: 0 is off and one other value
+    on, 8- or 16-bit, in one channel or several, where each pixel's brightest colour channel
+    counts (so white, red or any colour on black reads alike; alpha is ignored). DataError
+    naming the file, with `hint` appended, when it holds more values or two that are not 0.
+    lossy: a mask saved lossily or anti-aliased (JPEG, a resized PNG), whatever its values:
+    on above half its brightest value (a scene's own masks/, read as they always were)."""
+    raw = decode_image(path, what)
+    values = raw[..., :3].max(axis=2) if raw.ndim == 3 else raw  # [H, W]
+    if lossy:
+        return values.astype(np.float32) > values.max() / 2.0 if values.any() else values > 0
+    distinct = (np.flatnonzero(np.bincount(values.ravel(), minlength=256))
+                if values.dtype == np.uint8 else np.unique(values))
+    if distinct.size > 2 or (distinct.size == 2 and distinct[0] != 0):
+        shown = ", ".join(str(v) for v in distinct[:8]) + (", ..." if distinct.size > 8 else "")
+        raise DataError(path, f"holds the values {shown}, but {what} is binary: 0 and one "
+                              f"other value (saved losslessly, e.g. PNG){hint}")
+    return values > 0
 
 
 def read_poses_bounds(path: Path) -> np.ndarray:
@@ -493,15 +559,32 @@ def _check_rotations(rotations: np.ndarray, path: Path) -> None:
 
 
 def _folder_files(root: Path, name: str, suffixes: tuple[str, ...], required: bool) -> list[Path]:
+    """The frame files of the scene's folder `name` (`list_files`); [] for an optional folder
+    that is absent."""
     folder = root / name
-    if not folder.is_dir():
+    expected = f"a folder of frames ({', '.join(suffixes)})"
+    if not _present(folder, True, expected):
         if required:
-            raise DataError(folder, f"missing: expected a folder of frames ({', '.join(suffixes)})")
+            raise DataError(folder, f"missing: expected {expected}")
         return []
     files = list_files(folder, suffixes)
     if required and not files:
         raise DataError(folder, f"holds no frame files ({', '.join(suffixes)})")
     return files
+
+
+def _present(path: Path, folder: bool, expected: str) -> bool:
+    """Whether the scene's entry `path` is there, as a folder when `folder`, else as a file;
+    False when nothing is. Anything else in its place (a file where a folder belongs, a folder
+    where a file belongs, a broken symbolic link, a pipe) is a DataError naming it and what
+    was `expected`, never read as absent."""
+    if not os.path.lexists(path):
+        return False
+    if path.is_dir() if folder else path.is_file():
+        return True
+    found = ("is a folder" if path.is_dir() else "is a file" if path.is_file()
+             else not_a_file_problem(path))
+    raise DataError(path, f"{found}: expected {expected}")
 
 
 @dataclass(frozen=True)
@@ -512,6 +595,7 @@ class FrameFiles:
     depth: Path | None  # None: the scene has no depth/
     mask: Path | None  # None: the scene has no masks/
     depth_scale: float  # scene units per stored integer of PNG/TIFF depth
+    depth_limit: float  # largest depth accepted, scene units (`max_depth` of the scene's unit)
     size: tuple[int, int]  # (H, W) of the scene's first image
 
     def named(self) -> list[tuple[Path, str]]:
@@ -531,18 +615,25 @@ def read_frame_files(files: FrameFiles, fov: np.ndarray | None
     _check_size(files.image, image.shape[:2], files.size)
     depth = None
     if files.depth is not None:
-        depth = read_depth(files.depth, files.depth_scale)
+        depth = read_depth(files.depth, files.depth_scale, files.depth_limit)
         _check_size(files.depth, depth.shape, files.size)
     tool = None
     if files.mask is not None:
-        tool = read_tool_mask(files.mask)
+        tool = read_tool_mask(files.mask, lossy=True)
         _check_size(files.mask, tool.shape, files.size)
-        if tool.all():
-            raise DataError(files.mask, "marks every pixel as tool: no tissue is visible")
-        if fov is not None and not (fov & ~tool).any():
-            raise DataError(files.mask, f"marks every pixel inside {FOV_FILE} as tool: no "
-                                        "tissue is visible")
+        check_tissue_visible(tool, fov, files.mask)
     return image, depth, tool
+
+
+def check_tissue_visible(tool: np.ndarray, fov: np.ndarray | None, source: Path) -> None:
+    """DataError naming `source` (the mask file, or the model that made the mask) when the tool
+    mask `tool` (bool [H, W]) leaves no tissue pixel inside the field of view `fov` (bool
+    [H, W], None = every pixel)."""
+    if tool.all():
+        raise DataError(source, "marks every pixel as tool: no tissue is visible")
+    if fov is not None and not (fov & ~tool).any():
+        raise DataError(source, f"marks every pixel inside the field of view ({FOV_FILE}) as "
+                                "tool: no tissue is visible")
 
 
 def check_frame_headers(files: list[FrameFiles]) -> None:
@@ -644,7 +735,8 @@ def load_scene(root: str | Path, depth_scale: float | None = None,
     if not root.is_dir():
         raise DataError(root, "is not a folder: expected an EndoNeRF-layout scene "
                               f"({IMAGES_DIR}/, optional {DEPTH_DIR}/ and {MASKS_DIR}/, {POSES_FILE})")
-    meta = SceneMeta.read(root / META_FILE) if (root / META_FILE).is_file() else SceneMeta()
+    meta = (SceneMeta.read(root / META_FILE)
+            if _present(root / META_FILE, False, "the scene's metadata (JSON)") else SceneMeta())
     if depth_scale is not None:
         check_depth_scale(depth_scale, "depth scale")
         meta.depth_scale = depth_scale
@@ -672,7 +764,7 @@ def load_scene(root: str | Path, depth_scale: float | None = None,
     digest = hashlib.blake2b(poses.tobytes(), digest_size=16)
     digest.update(cameras[0].K.numpy().tobytes())
     fov_path = root / FOV_FILE
-    has_fov = fov_path.is_file()
+    has_fov = _present(fov_path, False, "the field-of-view mask image")
     fov_np = None
     fov = torch.ones(size, dtype=torch.bool)  # shared by every frame
     if has_fov:
@@ -683,7 +775,8 @@ def load_scene(root: str | Path, depth_scale: float | None = None,
 
     files = [FrameFiles(image=image_path, depth=depth_files[index] if depth_files else None,
                         mask=mask_files[index] if mask_files else None,
-                        depth_scale=meta.depth_scale, size=size)
+                        depth_scale=meta.depth_scale,
+                        depth_limit=max_depth(meta.depth_unit), size=size)
              for index, image_path in enumerate(image_files)]
     check_frame_headers(files)
     store = FrameStore(lambda index: frame_pixels(*read_frame_files(files[index], fov_np), fov),

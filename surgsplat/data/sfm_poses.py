@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from surgsplat.data.layout import Intrinsics, frame_stem, write_image
+from surgsplat.data.layout import MAX_DEPTH_MM, Intrinsics, frame_stem, write_image
 from surgsplat.errors import SurgsplatError
 
 INSTALL_HINT = "pip install 'surgsplat[sfm]' (or pip install 'pycolmap>=4.2')"
@@ -85,7 +85,7 @@ class SfmConfig:
     min_triangulation_angle_deg: float = field(default=0.1, metadata={"range": "(0, 90)"})
     """Smallest angle between rays of a sparse point, degrees (COLMAP: 1.5): endoscopes move
     millimetres in front of tissue centimetres away."""
-    median_depth: float = field(default=50.0, metadata={"range": "(0, inf)"})
+    median_depth: float = field(default=50.0, metadata={"range": f"(0, {MAX_DEPTH_MM:g}]"})
     """Scale convention without metric depth: the sparse points' median depth, scene units."""
     num_threads: int = field(default=2, metadata={"range": "[1, inf)"})
     """Threads of feature extraction, matching and mapping."""
@@ -99,7 +99,7 @@ class SfmConfig:
                   ("overlap", 1 <= self.overlap <= 16),
                   ("tool_dilation_px", self.tool_dilation_px >= 0),
                   ("min_triangulation_angle_deg", 0 < self.min_triangulation_angle_deg < 90),
-                  ("median_depth", self.median_depth > 0),
+                  ("median_depth", 0 < self.median_depth <= MAX_DEPTH_MM),
                   ("num_threads", self.num_threads >= 1),
                   ("seed", 0 <= self.seed <= 2147483647))
         for name, ok in checks:

@@ -47,6 +47,7 @@ as depth; the fitted surface then keeps little more than an overall tilt.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Literal
 
@@ -57,7 +58,7 @@ import torch.nn.functional as F
 from scipy import ndimage, optimize
 from torch import Tensor
 
-from surgsplat.data.layout import Intrinsics
+from surgsplat.data.layout import MAX_DEPTH_MM, Intrinsics
 from surgsplat.errors import SurgsplatError
 
 REFERENCE_WIDTH = 854
@@ -98,9 +99,11 @@ class ShadingDepthConfig:
 
     def validate(self) -> None:
         """Raise SurgsplatError for impossible values."""
-        if self.gamma <= 0 or self.median_depth <= 0 or self.robust_scale <= 0:
-            raise SurgsplatError("shading depth needs positive gamma, median_depth and "
-                                 "robust_scale")
+        if not (0 < self.gamma < math.inf and 0 < self.robust_scale < math.inf
+                and 0 < self.median_depth <= MAX_DEPTH_MM):
+            raise SurgsplatError(f"shading depth needs positive finite gamma and robust_scale "
+                                 f"and a median_depth in (0, {MAX_DEPTH_MM:g}], got "
+                                 f"{self.gamma}, {self.robust_scale} and {self.median_depth}")
         if self.albedo not in ("chromaticity", "constant"):
             raise SurgsplatError(f"shading depth albedo must be 'chromaticity' or 'constant', "
                                  f"got {self.albedo!r}")

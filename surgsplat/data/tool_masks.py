@@ -1,8 +1,9 @@
-"""Tool masks from user label images: binary masks or class-ID maps, paired with frames.
-
-A binary mask holds 0 (tissue) and one other value (tool), in one channel or several. A class-ID
-mask (e.g. CholecSeg8k's watershed masks) holds one integer class per pixel, in one channel or
-in three equal channels; the classes listed as tool labels are tool, all others tissue.
+"""Tool masks from user label images, paired with frames, and grown or shrunk for robustness
+runs. The label images are read by `surgsplat.data.scene.read_tool_mask`, the one reader of
+tool masks: a binary mask holds 0 (tissue) and one other value (tool), in one channel or
+several; a class-ID mask (e.g. CholecSeg8k's watershed masks) holds one integer class per
+pixel, in one channel or in three equal channels, and the classes listed as tool labels are
+tool, all others tissue.
 
 Mask files are paired with frames either by the numbers in their names (frame_561_endo.png and
 frame_561_endo_watershed_mask.png share (561,)) or by sorted order.
@@ -18,39 +19,12 @@ import numpy as np
 import torch
 
 from surgsplat.data.layout import name_numbers
-from surgsplat.data.scene import Scene, decode_image
+from surgsplat.data.scene import Scene
 from surgsplat.errors import DataError, SurgsplatError
 
 MASK_MATCHES = ("auto", "number", "order")
 """How mask files are paired with frames: by the numbers in the names, by sorted order, or
 "auto" (numbers for a folder of frames, order for a video)."""
-
-
-def read_tool_labels(path: Path, tool_labels: tuple[int, ...] | None) -> np.ndarray:
-    """A mask file as bool [H, W], True = tool.
-
-    tool_labels None: a binary mask, any nonzero value (in any channel) is tool; it must hold at
-    most two distinct values. Otherwise a class-ID mask whose pixels in `tool_labels` are tool.
-    """
-    raw = decode_image(path, "a mask image")
-    if raw.ndim == 3:
-        raw = raw[..., :3]
-    if tool_labels is None:
-        values = raw.max(axis=2) if raw.ndim == 3 else raw  # [H, W]
-        distinct = np.unique(values)
-        if distinct.size > 2:
-            shown = ", ".join(str(v) for v in distinct[:8]) + (", ..." if distinct.size > 8 else "")
-            raise DataError(path, f"holds {distinct.size} distinct values ({shown}) but a binary "
-                                  "mask holds 0 and one tool value; for class-ID masks pass the "
-                                  "tool classes with --tool-labels")
-        return values > 0
-    if raw.ndim == 3:
-        if not (raw == raw[..., :1]).all():
-            raise DataError(path, "has differing colour channels, but class-ID masks hold one ID "
-                                  "per pixel (one channel or three equal ones); is this a "
-                                  "colour-coded mask? choose the ID masks with --mask-pattern")
-        raw = raw[..., 0]
-    return np.isin(raw, np.asarray(tool_labels))
 
 
 def resolve_mask_match(mode: str, is_video: bool) -> str:

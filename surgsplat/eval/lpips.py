@@ -31,6 +31,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from surgsplat.errors import DataError
+from surgsplat.train.checkpoint import read_torch_file
 
 ALEXNET_FILENAME = "alexnet-owt-7be5be79.pth"
 ALEXNET_ENV = "SURGSPLAT_ALEXNET_WEIGHTS"
@@ -113,13 +114,12 @@ def _backbone_path(explicit: Path | None) -> tuple[Path | None, str | None]:
                   f"set ${ALEXNET_ENV} to the file to enable LPIPS")
 
 
-def _read_weights(path: Path) -> dict[str, Tensor]:
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises several types for unreadable or unsafe files
-        raise DataError(path, f"cannot be read as a PyTorch weights file ({err})") from err
+def _read_weights(path: Path, expected: str) -> dict[str, Tensor]:
+    """The dictionary of tensors of the weights file `path`; DataError naming the file and
+    `expected` (what it should hold) when it is not one."""
+    state = read_torch_file(path, expected)
     if not isinstance(state, dict):
-        raise DataError(path, "expected a dictionary of tensors")
+        raise DataError(path, f"expected {expected}, a dictionary of tensors")
     return state
 
 
@@ -142,13 +142,13 @@ def load_lpips(backbone_path: Path | None = None) -> tuple[LPIPS | None, str | N
     if path is None:
         return None, reason
     model = LPIPS()
-    backbone = _read_weights(path)
+    backbone = _read_weights(path, f"torchvision's AlexNet ImageNet weights ({ALEXNET_FILENAME})")
     with torch.no_grad():
         for conv, (prefix, cin, cout, kernel, _, _) in zip(model.backbone.convs, _ALEXNET_CONVS):
             shape = (cout, cin, kernel, kernel)
             conv.weight.copy_(_take(backbone, f"{prefix}.weight", shape, path))
             conv.bias.copy_(_take(backbone, f"{prefix}.bias", (cout,), path))
-        linear = _read_weights(LINEAR_WEIGHTS)
+        linear = _read_weights(LINEAR_WEIGHTS, "the LPIPS v0.1 linear layers")
         for index, (lin, spec) in enumerate(zip(model.lins, _ALEXNET_CONVS)):
             lin.weight.copy_(_take(linear, f"lin{index}", (1, spec[2], 1, 1), LINEAR_WEIGHTS))
     return model.eval().requires_grad_(False), None

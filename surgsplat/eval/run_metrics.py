@@ -29,7 +29,7 @@ from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
 
-__all__ = ["EvalOptions", "METRICS_FILE", "METRIC_FAMILIES", "evaluate_run"]
+__all__ = ["EvalOptions", "METRICS_FILE", "METRIC_FAMILIES", "evaluate_run", "frames_scored"]
 
 METRICS_FILE = "metrics.json"
 """RUN/metrics.json: `evaluate_run`'s metrics with the run's method and scene."""
@@ -102,6 +102,13 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     metrics["conventions"] = {key: text for family in families
                               for key, text in family.conventions().items()} | CONVENTIONS
     return metrics
+
+
+def frames_scored(metrics: dict) -> str:
+    """Which frames a metrics.json's metrics are over, with their count: "test (2)" or
+    "train (14)" (see CONVENTIONS["evaluated_on"]); one written before metrics said which is
+    over the test frames, the only ones scored then."""
+    return f"{metrics.get('evaluated_on', 'test')} ({metrics.get('test_frames', '?')})"
 
 
 def fit_test_poses(run: TrainedRun, background: Tensor) -> None:

@@ -27,7 +27,7 @@ import torch
 from surgsplat.atomic import write_text_atomic
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.eval.geometry_metrics import GEOMETRY_KEYS
-from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions, evaluate_run
+from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions, evaluate_run, frames_scored
 from surgsplat.export.channel_image import channel_image, colormap_image, percentile_range
 from surgsplat.export.video import to_uint8
 from surgsplat.model.channels import DEPTH, RGB, ChannelDescriptor, Colormap
@@ -41,6 +41,9 @@ COMPARED = ("psnr_tissue", "psnr_zeroed", "ssim", "lpips", "depth_rmse_mm",
             "train_seconds", "num_gaussians", "fps", "peak_rss_mb")
 ERROR_RANGE = 0.1
 """Mean absolute colour error shown at full heat in the error maps."""
+REPORT_HEAD = ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>surgsplat report"
+               "</title>")
+"""How every report begins: what tells a report surgsplat wrote from a user's file."""
 
 
 @dataclass
@@ -213,16 +216,18 @@ def metrics_table(run: RunSummary) -> str:
 
 def comparison_table(runs: list[RunSummary]) -> str:
     """One row per run, with its scene (named like the runs, relative to the folder holding
-    every scene), its method and the COMPARED metrics; runs of one scene are adjacent."""
+    every scene), its method, the frames its metrics are over (test or train, and how many:
+    `frames_scored`) and the COMPARED metrics; runs of one scene are adjacent."""
     keys = [key for key in COMPARED if any(key in run.metrics for run in runs)]
     header = "".join(f"<th>{html.escape(key)}</th>" for key in keys)
     scenes = short_names([run.scene for run in runs])
     rows = "".join(
         f"<tr><td>{html.escape(run.name)}</td><td>{html.escape(scene)}</td>"
-        f"<td>{html.escape(run.method)}</td>"
+        f"<td>{html.escape(run.method)}</td><td>{html.escape(frames_scored(run.metrics))}</td>"
         + "".join(f"<td class=num>{_cell(run.metrics.get(key))}</td>" for key in keys) + "</tr>"
         for scene, run in sorted(zip(scenes, runs), key=lambda pair: pair[0]))
-    return f"<table><tr><th>run</th><th>scene</th><th>method</th>{header}</tr>{rows}</table>"
+    return (f"<table><tr><th>run</th><th>scene</th><th>method</th><th>frames scored</th>"
+            f"{header}</tr>{rows}</table>")
 
 
 STYLE = """body{font-family:sans-serif;margin:2em;max-width:1400px}
@@ -232,19 +237,37 @@ figure img{width:100%;image-rendering:pixelated}
 h2{border-bottom:1px solid #888}figcaption{font-size:13px;color:#444}"""
 
 
+def check_report_target(out: Path) -> None:
+    """DataError naming `out` unless a report may be written there: a new file, or a report
+    surgsplat wrote (it begins with REPORT_HEAD); a folder or any other file is refused, never
+    replaced."""
+    out = Path(out)
+    if out.is_dir():
+        raise DataError(out, f"is a folder; expected the HTML file to write, e.g. "
+                             f"{out / 'report.html'}")
+    if out.exists():
+        with open(out, "rb") as handle:
+            head = handle.read(len(REPORT_HEAD))
+        if head != REPORT_HEAD.encode("ascii"):
+            raise DataError(out, "exists and is not a report surgsplat wrote; choose a new file "
+                                 "(a report replaces only an earlier report)")
+
+
 def write_report(run_dirs: list[Path], out: Path, max_frames: int = 4) -> Path:
-    """Write the HTML report of `run_dirs` to `out` (atomically); returns `out`."""
+    """Write the HTML report of `run_dirs` to `out` (atomically; see check_report_target);
+    returns `out`."""
     if not run_dirs:
         raise SurgsplatError("report: name at least one run folder")
+    check_report_target(out)
     runs = [summarise_run(Path(run_dir), name, max_frames)
             for run_dir, name in zip(run_dirs, short_names(run_dirs))]
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>surgsplat report</title>"
-             f"<style>{STYLE}</style></head><body><h1>surgsplat report</h1>"]
+    parts = [f"{REPORT_HEAD}<style>{STYLE}</style></head><body><h1>surgsplat report</h1>"]
     if len(runs) > 1:
         parts.append("<h2>comparison</h2>" + comparison_table(runs))
     parts.append(f"<h2>training curves</h2><img alt='training curves' src='{curves_figure(runs)}'>")
     for run in runs:
-        parts.append(f"<h2>{html.escape(run.name)} ({html.escape(run.method)})</h2>"
+        parts.append(f"<h2>{html.escape(run.name)} ({html.escape(run.method)}; metrics over "
+                     f"{html.escape(frames_scored(run.metrics))} frames)</h2>"
                      + metrics_table(run))
         for index, strip in run.frames:
             parts.append(f"<figure><img alt='test frame {index}' src='{png_data_uri(strip)}'>"

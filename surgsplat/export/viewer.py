@@ -98,6 +98,12 @@ def check_can_serve(host: str, port: int) -> None:
                              f"({err.strerror or err}); choose another --port or --host") from None
 
 
+def http_url(host: str, port: int) -> str:
+    """The address of a web server on `host`:`port` as a browser takes it: an IPv6 address in
+    brackets (http://[::1]:8080), any other host as it is."""
+    return f"http://[{host}]:{port}" if ":" in host else f"http://{host}:{port}"
+
+
 class RunViewer:
     """A viser server showing `run` on `host`:`port` (SurgsplatError when it cannot listen
     there; see check_can_serve); see the module docstring."""
@@ -117,6 +123,7 @@ class RunViewer:
         self._idle_timers: dict[int, threading.Timer] = {}
         check_can_serve(host, port)
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.url = http_url(host, self.server.get_port())  # where a browser opens the viewer
         count = len(run.scene.frames)
         gui = self.server.gui
         self.time_slider = gui.add_slider("frame", min=0, max=count - 1, step=1, initial_value=0)

@@ -57,9 +57,9 @@ class BasisCurvesConfig(ComponentConfig):
     long_clip_frames_per_basis: int = field(default=250, metadata={"range": "[1, inf)"})
     """Clips longer than this x num_basis frames get one basis function per this many frames.
     Every basis function costs each Gaussian D + 2 parameters, hence the sparse growth."""
-    max_basis: int = field(default=16, metadata={"range": "[2, inf)"})
-    """Upper limit of the basis functions of a long clip (per-Gaussian memory and time grow
-    linearly with it)."""
+    max_basis: int = field(default=16, metadata={"range": "[2, inf)", "at_least": "num_basis"})
+    """Upper limit of the basis functions of a long clip, at least num_basis (per-Gaussian
+    memory and time grow linearly with it)."""
     init_width: float = field(default=1.0, metadata={"range": "(0, inf)"})
     """Initial width sigma of every basis function, in units of the spacing of the centres."""
     weights_lr: float = field(default=2.5e-4, metadata={"range": "[0, inf)"})

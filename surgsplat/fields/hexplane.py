@@ -42,18 +42,20 @@ class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     """Spatial resolution (cells per axis) of the coarsest scale."""
     multires: tuple[int, ...] = field(default=(1, 2), metadata={"range": "[1, inf)"})
     """Spatial resolution multipliers, one feature scale each."""
-    max_resolution: int = field(default=64, metadata={"range": "[2, 1024]"})
-    """Upper limit of any scale's spatial resolution. A third scale up to 128 (multires
-    (1, 2, 4)) gained 0.33 dB of psnr_tissue for 1.36x the CPU time (endogaussian, full
-    phantom, 3000 iterations, seed 1: 40.71 against 40.38 dB)."""
+    max_resolution: int = field(default=64, metadata={"range": "[2, 1024]",
+                                                       "at_least": "base_resolution"})
+    """Upper limit of any scale's spatial resolution, at least base_resolution. A third scale
+    up to 128 (multires (1, 2, 4)) gained 0.33 dB of psnr_tissue for 1.36x the CPU time
+    (endogaussian, full phantom, 3000 iterations, seed 1: 40.71 against 40.38 dB)."""
     time_resolution: int = field(default=25, metadata={"range": "[2, inf)"})
     """Cells along time of the spatio-temporal planes for a short clip (at most half the frame
     count)."""
     long_clip_frames_per_cell: int = field(default=10, metadata={"range": "[1, inf)"})
     """Clips longer than 10 x time_resolution frames get one time cell per this many frames
     (the planes' memory grows with it; the cost per Gaussian does not)."""
-    max_time_resolution: int = field(default=300, metadata={"range": "[2, inf)"})
-    """Upper limit of the time cells of a long clip."""
+    max_time_resolution: int = field(default=300, metadata={"range": "[2, inf)",
+                                                            "at_least": "time_resolution"})
+    """Upper limit of the time cells of a long clip, at least time_resolution."""
     feature_dim: int = field(default=32, metadata={"range": "[1, inf)"})
     """Feature channels C of every plane."""
     mlp_width: int = field(default=64, metadata={"range": "[1, inf)"})

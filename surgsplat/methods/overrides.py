@@ -157,6 +157,16 @@ def parse_assignment(text: str) -> dict:
     return nested
 
 
+def dotted_keys(values: dict, prefix: str = "") -> set[str]:
+    """The dotted key of every setting a nested dict of changes makes (`parse_assignment`'s
+    result, say): {"train": {"iterations": 30}} -> {"train.iterations"}."""
+    keys = set()
+    for key, value in values.items():
+        path = f"{prefix}.{key}" if prefix else str(key)
+        keys |= dotted_keys(value, path) if isinstance(value, dict) and value else {path}
+    return keys
+
+
 def read_config_file(path: Path) -> dict:
     """A JSON (.json) or TOML (.toml) config file as a dict; DataError naming the file."""
     path = Path(path)

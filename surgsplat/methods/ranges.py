@@ -10,8 +10,18 @@ The declaration is a plain string under `RANGE_KEY`, so the component layers bel
 the range holds for each element. Whatever the range, a number must be finite: NaN and +-inf
 are refused everywhere.
 
+A field whose valid values depend on a sibling field declares that too, by the sibling's name:
+
+    stop: float = field(default=1.0, metadata={"range": "(0, 1]", "above": "start"})
+
+`ABOVE_KEY`: greater than the sibling's value; `AT_LEAST_KEY`: greater than or equal to it. A
+rule that no such order states (two fields that only act together, say) is a config class's
+`check_rules(where)` method.
+
 `check_field` checks a value as `overrides.apply_values` sets it (`--set`, `--config`, a saved
-config.json); `check_config` checks every field of a whole config (a preset).
+config.json); `check_config` checks every field of a whole config and the rules between them
+(a preset, a user's config once all its changes are applied, a saved config): one change may
+need another to satisfy a rule, so the rules are checked once every change is in.
 """
 
 from __future__ import annotations
@@ -26,6 +36,14 @@ from surgsplat.errors import SurgsplatError
 
 RANGE_KEY = "range"
 """Key of a field's valid range in its `dataclasses.field(metadata=...)`."""
+
+ABOVE_KEY = "above"
+"""Key naming the sibling field that a field's value must be greater than."""
+AT_LEAST_KEY = "at_least"
+"""Key naming the sibling field that a field's value must be greater than or equal to."""
+RULES_METHOD = "check_rules"
+"""Name of the method (taking the config's dotted key, "" at the top) by which a config class
+checks the rules between its fields that no declared order states."""
 
 _INTERVAL = re.compile(r"^([\[(])\s*(\S+)\s*,\s*(\S+)\s*([\])])$")
 
@@ -92,17 +110,43 @@ def check_field(config_field: dataclasses.Field, value: Any, where: str) -> None
             raise SurgsplatError(f"{where}: {number!r} is out of range; expected {kind}{span}")
 
 
-def check_config(config: Any, where: str) -> None:
-    """`check_field` on every field of dataclass `config`, of the dataclasses it holds and of
-    the dataclasses in its dicts (components, loss weights), each named by its dotted key."""
+def dotted(where: str, key: str | int) -> str:
+    """The dotted key of `key` in the config at `where` ("" at the top)."""
+    return f"{where}.{key}" if where else str(key)
+
+
+def check_order(config: Any, config_field: dataclasses.Field, where: str) -> None:
+    """SurgsplatError naming both keys when `config_field` of dataclass `config` (at `where`)
+    is not above / at least the sibling field its metadata names (ABOVE_KEY, AT_LEAST_KEY)."""
+    value = getattr(config, config_field.name)
+    for key, relation in ((ABOVE_KEY, "greater than"), (AT_LEAST_KEY, "at least")):
+        sibling = config_field.metadata.get(key)
+        if sibling is None:
+            continue
+        bound = getattr(config, sibling)
+        if value > bound or (key == AT_LEAST_KEY and value == bound):
+            continue
+        raise SurgsplatError(f"{dotted(where, config_field.name)} ({value!r}) must be "
+                             f"{relation} {dotted(where, sibling)} ({bound!r})")
+
+
+def check_config(config: Any, where: str = "") -> None:
+    """`check_field` and `check_order` on every field of dataclass `config`, of the
+    dataclasses it holds and of the dataclasses in its dicts (components, loss weights), and
+    each one's RULES_METHOD, each named by its dotted key below `where`."""
     if isinstance(config, dict):
         for key, entry in config.items():
-            check_config(entry, f"{where}.{key}")
+            check_config(entry, dotted(where, key))
         return
     if not dataclasses.is_dataclass(config):
         return
     for config_field in dataclasses.fields(config):
         value = getattr(config, config_field.name)
-        key = f"{where}.{config_field.name}"
+        key = dotted(where, config_field.name)
         check_field(config_field, value, key)
         check_config(value, key)
+    for config_field in dataclasses.fields(config):
+        check_order(config, config_field, where)
+    rules = getattr(config, RULES_METHOD, None)
+    if rules is not None:
+        rules(where)

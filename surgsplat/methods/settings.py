@@ -5,6 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from surgsplat.errors import SurgsplatError
+from surgsplat.methods.ranges import dotted
+
 
 @dataclass
 class LearningRates:
@@ -60,7 +63,22 @@ class TrainConfig:
     size): the first stage at 1/coarse_factor of the size, each next one at twice the previous
     size, the stages sharing this fraction equally; full size after it."""
     coarse_factor: int = field(default=1, metadata={"range": "[1, 16]"})
-    """Downscale factor of the first coarse stage: 1 (no coarse stage), 2, 4, 8 or 16."""
+    """Downscale factor of the first coarse stage: 1 (no coarse stage), 2, 4, 8 or 16; above 1
+    exactly when coarse_fraction is above 0."""
+
+    def check_rules(self, where: str) -> None:
+        """SurgsplatError naming the keys (below `where`) unless coarse_factor is a power of 2
+        and is above 1 exactly when coarse_fraction is above 0: either one alone trains no
+        coarse stage."""
+        factor, fraction = dotted(where, "coarse_factor"), dotted(where, "coarse_fraction")
+        if self.coarse_factor & (self.coarse_factor - 1):
+            raise SurgsplatError(f"{factor}: {self.coarse_factor} is not a power of 2 (1, 2, 4, "
+                                 "8 or 16)")
+        if (self.coarse_factor > 1) != (self.coarse_fraction > 0):
+            raise SurgsplatError(f"{factor} ({self.coarse_factor}) and {fraction} "
+                                 f"({self.coarse_fraction}) set the coarse stages together: "
+                                 "give both (a factor of 2 to 16 and a fraction above 0) or "
+                                 "neither")
 
     def downscale_at(self, iteration: int) -> int:
         """The factor frames are downscaled by at `iteration` (counted from 1) of this run."""
@@ -80,7 +98,7 @@ class LossWeight:
     start: float = field(default=0.0, metadata={"range": "[0, 1)"})
     """The term joins the objective once this fraction of the run (of train.iterations) has
     passed, so that `--iters` moves it with the rest of the schedule; in [0, 1)."""
-    stop: float = field(default=1.0, metadata={"range": "(0, 1]"})
+    stop: float = field(default=1.0, metadata={"range": "(0, 1]", "above": "start"})
     """The term leaves the objective after this fraction of the run (1 = it stays to the end);
     greater than start."""
 
@@ -106,8 +124,9 @@ class DensifyConfig:
 
     start: float = field(default=0.1, metadata={"range": "[0, 1]"})
     """Densification may run once this fraction of the run (of train.iterations) has passed."""
-    stop: float = field(default=2 / 3, metadata={"range": "[0, 1]"})
-    """No densification, pruning or opacity reset after this fraction of the run."""
+    stop: float = field(default=2 / 3, metadata={"range": "[0, 1]", "above": "start"})
+    """No densification, pruning or opacity reset after this fraction of the run; greater than
+    start."""
     every: int = field(default=100, metadata={"range": "[1, inf)"})
     """Densify and prune every this many iterations (a cadence, not a stage: kept as --iters
     changes, like 3DGS's 100 from 600 to 30000 iterations)."""

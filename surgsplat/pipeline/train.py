@@ -15,7 +15,8 @@ from surgsplat.export.articulation import ARTICULATION_FILE
 from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import apply_values
 from surgsplat.pipeline.articulate import articulate_run, articulation_summary
-from surgsplat.train.checkpoint import previous_path
+from surgsplat.pipeline.run_folders import check_output_folder
+from surgsplat.train.checkpoint import has_checkpoint, previous_path
 from surgsplat.train.run import load_trained_run, read_run_config, read_run_scene
 from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE, SCENE_FILE, StepStats, Trainer
 
@@ -32,12 +33,8 @@ def check_new_run_folder(out: Path) -> None:
     folder (its config.json and scene.txt present; one holding a checkpoint is then refused
     with a hint to --resume). Any other folder holds a user's files that the run would
     replace."""
-    if not out.is_dir() or not any(out.iterdir()):
-        return
-    if not ((out / CONFIG_FILE).is_file() and (out / SCENE_FILE).is_file()):
-        raise SurgsplatError(f"{out}: is not empty and is not a surgsplat run folder; choose a "
-                             "new or empty --out (a run writes config.json, scene.json, ... "
-                             "there, replacing files of the same name)")
+    check_output_folder(out, "--out", "a run writes config.json, scene.json, ...",
+                        identifying=(CONFIG_FILE, SCENE_FILE), kind="a surgsplat run folder")
 
 
 def start_training(config: MethodConfig, data: Path | None, out: Path, resume: bool,
@@ -49,14 +46,14 @@ def start_training(config: MethodConfig, data: Path | None, out: Path, resume: b
     """
     checkpoint = out / CHECKPOINT
     if resume:
-        if not checkpoint.is_file():
+        if not has_checkpoint(checkpoint):
             raise SurgsplatError(f"{checkpoint}: nothing to resume (no checkpoint in {out})")
         config = read_run_config(out)
         scene = read_run_scene(out, data)
     else:
         if data is None:
             raise SurgsplatError("--data is required unless --resume continues a run")
-        if checkpoint.is_file():
+        if has_checkpoint(checkpoint):
             raise SurgsplatError(f"{out} already holds a run; pass --resume to continue it or "
                                  "choose another --out")
         scene = load_scene(data)

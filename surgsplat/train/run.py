@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
 import os
@@ -19,6 +20,7 @@ from surgsplat.data.scene import Scene, load_scene
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import method_from_values
+from surgsplat.methods.ranges import check_config
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.train.checkpoint import load_checkpoint, model_from_state, previous_path
 from surgsplat.train.trainer import (CHECKPOINT, CONFIG_FILE, SCENE_FILE, SCENE_ID_FILE,
@@ -26,6 +28,8 @@ from surgsplat.train.trainer import (CHECKPOINT, CONFIG_FILE, SCENE_FILE, SCENE_
 
 LOCK_FILE = ".lock"
 """RUN/.lock: held (flock, exclusive) by the one process writing the run; holds its PID."""
+READ_ONLY_ERRNOS = (errno.EROFS, errno.EACCES, errno.EPERM)
+"""What opening RUN/.lock for writing fails with in a folder this process cannot write."""
 
 
 @contextmanager
@@ -35,30 +39,24 @@ def run_lock(run_dir: Path, create: bool = False) -> Iterator[None]:
     one with a SurgsplatError naming the folder and that process's PID. The folder is created
     when `create`, else it must exist. Temporary files that a killed writer left in the folder
     or below it are removed; those of a writer still running (`surgsplat report` into the run,
-    say) are left alone (`remove_stale_temporaries`)."""
+    say) are left alone (`remove_stale_temporaries`).
+
+    An existing folder that this process cannot write (a read-only mount, no permission) and
+    is not asked to `create` is only read by it, which needs no lock: checkpoints and run
+    files are replaced atomically, so a reader never meets a half-written one. The block then runs without the lock, and a
+    write into the folder fails where it is made, naming its file."""
     run_dir = Path(run_dir)
     if create:
         run_dir.mkdir(parents=True, exist_ok=True)
     elif not run_dir.is_dir():
         raise DataError(run_dir, "is not a folder: expected a run folder written by "
                                  "`surgsplat train`")
-    path = run_dir / LOCK_FILE
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    fd = open_lock_file(run_dir / LOCK_FILE, must_write=create)
+    if fd is None:
+        yield
+        return
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = ""
-            for _ in range(20):  # the holder writes its PID just after taking the lock
-                holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
-                if holder:
-                    break
-                time.sleep(0.05)
-            raise SurgsplatError(f"{run_dir}: in use by another surgsplat process (PID "
-                                 f"{holder or 'unknown'}); wait for it to end or choose another "
-                                 "folder") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        hold_lock(fd, run_dir)
         for folder in (run_dir, *(path for path in run_dir.rglob("*") if path.is_dir())):
             remove_stale_temporaries(folder)
         yield
@@ -66,22 +64,55 @@ def run_lock(run_dir: Path, create: bool = False) -> Iterator[None]:
         os.close(fd)
 
 
+def open_lock_file(path: Path, must_write: bool) -> int | None:
+    """A descriptor of the lock file `path` open for writing (created when missing); None when
+    its folder cannot be written (READ_ONLY_ERRNOS) and not `must_write`."""
+    try:
+        return os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as err:
+        if must_write or err.errno not in READ_ONLY_ERRNOS:
+            raise
+    return None
+
+
+def hold_lock(fd: int, run_dir: Path) -> None:
+    """Take the exclusive flock on the open lock file `fd` of `run_dir` and write this
+    process's PID into it; SurgsplatError naming the holder's PID when another process holds
+    it."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = ""
+        for _ in range(20):  # the holder writes its PID just after taking the lock
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            if holder:
+                break
+            time.sleep(0.05)
+        raise SurgsplatError(f"{run_dir}: in use by another surgsplat process (PID "
+                             f"{holder or 'unknown'}); wait for it to end or choose another "
+                             "folder") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+
+
 def read_run_config(run_dir: Path) -> MethodConfig:
     """The MethodConfig saved in RUN/config.json, built from the saved values alone (each
     component from its saved kind), so that a run loads whatever its name; the values are
-    checked as any others are (types and ranges)."""
+    checked as any others are (types, ranges and the rules between fields)."""
     path = Path(run_dir) / CONFIG_FILE
     if not path.is_file():
         raise DataError(path, "missing: not a surgsplat run folder (train one with "
                               "`surgsplat train`)")
     try:
         saved = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
+    except ValueError as err:  # not JSON, or not UTF-8 text
         raise DataError(path, f"is not valid JSON ({err})") from err
     if not isinstance(saved, dict) or not isinstance(saved.get("name"), str):
         raise DataError(path, "expected a saved method configuration with a 'name'")
-    return method_from_values(saved, MethodConfig(name=saved["name"]), where=str(path),
-                              complete=True)
+    config = method_from_values(saved, MethodConfig(name=saved["name"]), where=str(path),
+                                complete=True)
+    check_config(config, str(path))
+    return config
 
 
 def read_run_scene(run_dir: Path, data_dir: Path | None = None) -> Scene:
@@ -91,7 +122,10 @@ def read_run_scene(run_dir: Path, data_dir: Path | None = None) -> Scene:
         path = Path(run_dir) / SCENE_FILE
         if not path.is_file():
             raise DataError(path, "missing: the run does not say which scene it was trained on")
-        data_dir = Path(path.read_text().strip())
+        try:
+            data_dir = Path(path.read_text().strip())
+        except ValueError as err:  # not UTF-8 text
+            raise DataError(path, f"is not the path of a scene folder ({err})") from err
         if not data_dir.is_dir():
             raise DataError(data_dir, f"missing: the run's scene (named in {path}) has moved or "
                                       "been deleted; pass --data with its location")
@@ -108,8 +142,10 @@ def check_scene_identity(run_dir: Path, scene: Scene) -> None:
         return
     try:
         saved = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
+    except ValueError as err:  # not JSON, or not UTF-8 text
         raise DataError(path, f"is not valid JSON ({err})") from err
+    if not isinstance(saved, dict):
+        raise DataError(path, "expected a JSON object describing the run's scene")
     found = scene_identity(scene)
     where = f"{scene.root} is not the scene this run was trained on ({saved.get('path')})"
     if saved.get("frames") != found["frames"]:

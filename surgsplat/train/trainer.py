@@ -32,6 +32,7 @@ from surgsplat.data.scene import MIN_SIZE, Frame, Scene
 from surgsplat.data.tool_masks import offset_tool_masks
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig, to_dict
+from surgsplat.methods.ranges import check_config
 from surgsplat.methods.settings import LossWeight
 from surgsplat.model.component import (Component, FrameTime, ParamGroup, RenderContext,
                                        SceneInfo, SetupContext)
@@ -97,10 +98,9 @@ def scene_identity(scene: Scene) -> dict:
 
 
 def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str]) -> None:
-    """Every declared term has a weight, every nonzero weight names a declared term (a zero
+    """Every declared term has a weight, and every nonzero weight names a declared term (a zero
     weight may name a term no component computes, so that `--set losses.NAME.weight=0` turns
-    off the loss of a component that another `--set` replaced), and every term's window is not
-    empty."""
+    off the loss of a component that another `--set` replaced)."""
     unknown = sorted(name for name, weight in weights.items()
                      if name not in declared and weight.weight > 0)
     if unknown:
@@ -110,10 +110,6 @@ def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str])
     if missing:
         raise SurgsplatError(f"losses.{missing[0]}: component {declared[missing[0]]!r} computes "
                              f"this term but the method gives it no weight")
-    for name, weight in weights.items():
-        if weight.stop <= weight.start:
-            raise SurgsplatError(f"losses.{name}: stop ({weight.stop}) must be greater than start "
-                                 f"({weight.start})")
 
 
 def add_component_points(context: SetupContext, colors: Tensor,
@@ -182,9 +178,11 @@ def trim_log(path: Path, iteration: int) -> None:
 
 
 class Trainer:
-    """Trains a method (a MethodConfig) on a scene into a run folder."""
+    """Trains a method (a MethodConfig) on a scene into a run folder; SurgsplatError when the
+    config breaks a declared range or rule between its fields (`check_config`)."""
 
     def __init__(self, config: MethodConfig, scene: Scene, run_dir: Path):
+        check_config(config)
         info = scene_info(scene)
         self.config = config.resolved(info)
         scene = offset_tool_masks(scene, self.config.train.tool_mask_offset_px)
@@ -208,9 +206,6 @@ class Trainer:
         self.model = SplatModel(gaussians, components)
         check_loss_weights(self.config.losses, self.model.loss_terms())
         factor = self.config.train.coarse_factor
-        if factor & (factor - 1):
-            raise SurgsplatError(f"train.coarse_factor: {factor} is not a power of 2 (1, 2, 4, "
-                                 "8 or 16)")
         if factor > 1 and min(info.width, info.height) // factor < MIN_SIZE:
             raise SurgsplatError(f"train.coarse_factor: {factor} would downscale the "
                                  f"{info.width}x{info.height} frames under {MIN_SIZE}x{MIN_SIZE} "

@@ -87,6 +87,7 @@ def test_bad_fov_masks_name_the_file(tmp_path: Path):
     cv2.imwrite(str(root / "fov_mask.png"), np.where(inside, 255, 0).astype(np.uint8))
     cv2.imwrite(str(root / "masks" / "000001.png"),  # ... and frame 1's tool covers them
                 np.where(inside, 255, 0).astype(np.uint8))
-    with pytest.raises(DataError, match="every pixel inside fov_mask.png as tool") as info:
+    covered = r"every pixel inside the field of view \(fov_mask.png\) as tool"
+    with pytest.raises(DataError, match=covered) as info:
         load_scene(root)
     assert info.value.path.name == "000001.png"

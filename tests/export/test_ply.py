@@ -65,7 +65,8 @@ def test_cli_export_frames(trained, cli, tmp_path):
     run = trained.run_dir
     done = cli("export", str(run), "--ply", "--frames", "0,9", "--out", str(tmp_path / "ply"))
     assert done.returncode == 0, done.stderr
-    assert sorted(p.name for p in (tmp_path / "ply").iterdir()) == ["000000.ply", "000009.ply"]
+    assert sorted(p.name for p in (tmp_path / "ply").glob("*.ply")) == ["000000.ply",
+                                                                        "000009.ply"]
     one = cli("export", str(run), "--ply", "--time", "0.5", "--out", str(tmp_path / "t"))
     assert one.returncode == 0 and (tmp_path / "t" / "time_0.5000.ply").is_file()
     for args, message in (((), "nothing to export"), (("--frames", "99"), "has frames 0..15"),

@@ -14,9 +14,8 @@ from surgsplat.data.auto_tool_masks import (AutoMaskConfig, auto_tool_masks, sna
                                             windowed)
 from surgsplat.data.fov_mask import estimate_fov
 from surgsplat.data.importer import ImportConfig, import_scene
-from surgsplat.data.scene import load_scene
+from surgsplat.data.scene import load_scene, read_tool_mask
 from surgsplat.data.summary import summarise
-from surgsplat.data.tool_masks import read_tool_labels
 from surgsplat.errors import DataError, SurgsplatError
 
 HEIGHT, WIDTH = 240, 427  # the segmenter's working size: no resizing in these tests
@@ -234,7 +233,7 @@ def test_real_cholecseg8k_frames_reach_tool_iou_0_6(shared_data: Path):
     labels = [clip / f"frame_{n}_endo_watershed_mask.png" for n in numbers]
     tallies = np.zeros(3)
     for result, label in zip(auto_tool_masks(frames, estimate_fov(frames).inside), labels):
-        truth = read_tool_labels(label, (31, 32))
+        truth = read_tool_mask(label, (31, 32))
         inside = cv2.imread(str(label), cv2.IMREAD_GRAYSCALE) != 50
         mask = result.mask & inside
         tallies += [(mask & truth).sum(), (mask & ~truth).sum(), (~mask & truth).sum()]

@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from surgsplat.data.tool_masks import match_masks, read_tool_labels, resolve_mask_match
+from surgsplat.data.scene import read_tool_mask
+from surgsplat.data.tool_masks import match_masks, resolve_mask_match
 from surgsplat.errors import DataError, SurgsplatError
 
 
@@ -18,24 +19,24 @@ def write(path: Path, image: np.ndarray) -> Path:
 def test_class_id_masks_with_equal_channels(tmp_path: Path):
     ids = np.array([[11, 31], [32, 50]], np.uint8)
     path = write(tmp_path / "m.png", np.repeat(ids[..., None], 3, axis=2))
-    assert read_tool_labels(path, (31, 32)).tolist() == [[False, True], [True, False]]
+    assert read_tool_mask(path, (31, 32)).tolist() == [[False, True], [True, False]]
 
 
 def test_colour_coded_mask_is_refused(tmp_path: Path):
     path = write(tmp_path / "c.png", np.array([[[0, 0, 255], [255, 0, 0]]], np.uint8))
     with pytest.raises(DataError, match="colour-coded"):
-        read_tool_labels(path, (31,))
+        read_tool_mask(path, (31,))
 
 
 def test_binary_masks_any_nonzero_is_tool(tmp_path: Path):
     path = write(tmp_path / "b.png", np.array([[0, 1], [1, 0]], np.uint8))
-    assert read_tool_labels(path, None).tolist() == [[False, True], [True, False]]
+    assert read_tool_mask(path, None).tolist() == [[False, True], [True, False]]
 
 
 def test_class_ids_without_tool_labels_are_refused(tmp_path: Path):
     path = write(tmp_path / "ids.png", np.array([[11, 31, 50]], np.uint8))
     with pytest.raises(DataError, match="--tool-labels"):
-        read_tool_labels(path, None)
+        read_tool_mask(path, None)
 
 
 def test_match_by_number_and_order():

@@ -72,7 +72,7 @@ def lumistate_method(iterations: int, stage2: int):
     config.train.iterations = iterations
     config.train.checkpoint_every = 1000
     config.init.max_points = 800
-    config.densify.stop = 0.0  # no densification
+    config.densify.every = iterations + 1  # no densification
     for term in ("retinex", "bright_channel", "illumination_transfer"):
         config.losses[term].start = stage2 / iterations
     return config

@@ -154,4 +154,4 @@ def test_budget_and_iters_are_refused_together(cli, small_phantom, tmp_path, one
     result = cli("train", "--data", str(small_phantom), "--out", str(tmp_path / "run"),
                  "--budget", "5", "--iters", "10")
     assert result.returncode == 2
-    assert "--budget and --iters" in one_error_line(result)
+    assert "--iters 10 and --budget 5 each set the run's length" in one_error_line(result)

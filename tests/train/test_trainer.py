@@ -298,8 +298,8 @@ def test_a_loss_term_leaves_the_objective_at_its_stop(small_phantom, tmp_path):
 def test_a_loss_window_that_is_empty_is_refused(small_phantom, tmp_path):
     config = small_config("deform3dgs", 20)
     config.losses["depth"].start, config.losses["depth"].stop = 0.6, 0.4
-    with pytest.raises(SurgsplatError, match=r"losses.depth: stop \(0.4\) must be greater than "
-                                             r"start \(0.6\)"):
+    with pytest.raises(SurgsplatError, match=r"losses.depth.stop \(0.4\) must be greater than "
+                                             r"losses.depth.start \(0.6\)"):
         Trainer(config, load_scene(small_phantom), tmp_path / "run")
 
 

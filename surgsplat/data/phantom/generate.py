@@ -58,6 +58,8 @@ EXPOSURE_FILE = f"{GT_DIR}/exposure.json"
 SHADING_DIR = f"{GT_DIR}/shading"
 LIGHT_INTENSITY_FILE = f"{GT_DIR}/light_intensity.json"
 CAMERA_POSES_FILE = f"{GT_DIR}/camera_poses.npy"
+MAX_SEED = 2**32 - 1
+"""Largest phantom seed: seeds are the unsigned 32-bit words of numpy's seed sequences."""
 
 
 @dataclass(frozen=True)
@@ -96,7 +98,8 @@ class PhantomConfig:
     camera: str = "static"
     """Endoscope: "static" or "moving" (translates a few mm, turns a few degrees)."""
     seed: int = 0
-    """Seed of the texture, surface shape and tool path; equal seeds give identical files."""
+    """Seed of the texture, surface shape and tool path, in 0 .. MAX_SEED; equal seeds give
+    identical files."""
     num_frames: int | None = None
     """Number of frames; None = the preset's default."""
     lighting: str = "standard"
@@ -119,6 +122,9 @@ def check_phantom_request(config: PhantomConfig, out_dir: Path) -> tuple[Phantom
     if config.lighting not in LIGHTINGS:
         raise SurgsplatError(f"unknown phantom lighting {config.lighting!r}; valid lightings: "
                              f"{', '.join(LIGHTINGS)}")
+    if not 0 <= config.seed <= MAX_SEED:
+        raise SurgsplatError(f"the phantom seed must be an integer in 0..{MAX_SEED}, got "
+                             f"{config.seed}")
     preset = PRESETS[config.preset]
     num_frames = preset.num_frames if config.num_frames is None else config.num_frames
     if num_frames < 1:
