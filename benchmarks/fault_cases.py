@@ -106,14 +106,14 @@ def case_lzw_tiff(w: Path) -> dict:
 
 # ---- import ----
 def frames_and_labels(w: Path, name: str) -> tuple[Path, Path]:
-    """A folder of the phantom's frames and one of CholecSeg8k-style class-ID masks (0
+    """A folder of the phantom's frames and one of CholecSeg8k-style class-ID masks (50
     tissue, 31 tool) for them."""
     frames, labels = w / f"frames-{name}", w / f"labels-{name}"
     shutil.copytree(w / "phantom" / "images", frames)
     labels.mkdir()
     for path in (w / "phantom" / "masks").iterdir():
         tool = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 127
-        cv2.imwrite(str(labels / path.name), np.where(tool, 31, 0).astype(np.uint8))
+        cv2.imwrite(str(labels / path.name), np.where(tool, 31, 50).astype(np.uint8))
     return frames, labels
 
 
@@ -311,9 +311,15 @@ def case_render_into_user_folder(w: Path) -> dict:
 
 
 def case_export_sim_into_user_folder(w: Path) -> dict:
-    """outputs: export --sim a folder of the user's holding scene.xml leaves it alone."""
+    """outputs: export --sim a folder of the user's holding scene.xml leaves it alone (a run of
+    a method with a tool field, which --sim needs)."""
+    run = w / "run-physiosplat"
+    trained = cli("train", "--method", "physiosplat", "--data", str(w / "phantom"), "--out",
+                  str(run), *FAST)
+    if trained is None or trained.returncode != 0:
+        return outcome(trained, 0, "")
     folder = user_folder(w, "mysim", "scene.xml")
-    result = cli("export", str(w / "run"), "--sim", str(folder))
+    result = cli("export", str(run), "--sim", str(folder))
     return outcome(result, 2, str(folder),
                    overwrote=(folder / "scene.xml").read_bytes() != USER_FILE)
 
@@ -356,7 +362,7 @@ def case_mesh_resolution(w: Path) -> dict:
 
 
 def case_view_ipv6(w: Path) -> dict:
-    """outputs: view --host ::1 prints a URL with the address in brackets."""
+    """outputs: view --host ::1 prints its URL with the address in brackets."""
     with socket.socket(socket.AF_INET6) as probe:
         probe.bind(("::1", 0))
         port = probe.getsockname()[1]
@@ -365,8 +371,8 @@ def case_view_ipv6(w: Path) -> dict:
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     said = ""
-    while time.monotonic() < deadline and "http" not in said and process.poll() is None:
-        said += process.stdout.readline()
+    while time.monotonic() < deadline and "viewer at" not in said and process.poll() is None:
+        said += process.stdout.readline()  # viser's own banner first, then surgsplat's line
     process.send_signal(signal.SIGINT)
     stdout, stderr = process.communicate(timeout=30)
     result = subprocess.CompletedProcess(process.args, 0, said + stdout, stderr)
@@ -436,9 +442,9 @@ def case_batch_sigterm(w: Path) -> dict:
                                                  "--iters", "200"),
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + BATCH_SECONDS
-    while time.monotonic() < deadline and not (out / "clips").exists() and process.poll() is None:
+    while (time.monotonic() < deadline and process.poll() is None
+           and not any(out.rglob("train_log.jsonl"))):  # training has started
         time.sleep(0.2)
-    time.sleep(3)
     process.send_signal(signal.SIGTERM)
     try:
         stdout, stderr = process.communicate(timeout=BATCH_SECONDS)

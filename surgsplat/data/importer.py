@@ -55,7 +55,8 @@ from surgsplat.data.layout import (MAX_FRAME_PIXELS, Intrinsics, SceneMeta, Scen
 from surgsplat.data.learned_priors import (DepthNetworkConfig, ToolSegmenterConfig,
                                            model_tool_masks, network_depth)
 from surgsplat.data.onnx_models import OnnxModel
-from surgsplat.data.scene import MIN_SIZE, check_tissue_visible, read_tool_mask
+from surgsplat.data.scene import (CLASS_ID_HINT, MIN_SIZE, check_tissue_visible,
+                                  read_tool_mask)
 from surgsplat.data.sfm_poses import SfmConfig, SfmWorkspace, require_pycolmap
 from surgsplat.data.shading_depth import ShadingDepthConfig, shading_depth
 from surgsplat.data.sparse_points import write_sparse_points
@@ -369,7 +370,9 @@ def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
         if not selected:
             raise DataError(config.masks, "has a mask for none of the selected frames")
         first_mask = mask_of[selected[0]]
-        check_tissue_visible(read_tool_mask(first_mask, config.tool_labels), None, first_mask)
+        hint = CLASS_ID_HINT if config.tool_labels is None else ""  # one class everywhere?
+        check_tissue_visible(read_tool_mask(first_mask, config.tool_labels), None, first_mask,
+                             hint)
     _, first = next(frames.read(selected[:1]))
     source_size = first.shape[:2]  # (H, W)
     out_size = _output_size(source_size, config)

@@ -625,15 +625,16 @@ def read_frame_files(files: FrameFiles, fov: np.ndarray | None
     return image, depth, tool
 
 
-def check_tissue_visible(tool: np.ndarray, fov: np.ndarray | None, source: Path) -> None:
+def check_tissue_visible(tool: np.ndarray, fov: np.ndarray | None, source: Path,
+                         hint: str = "") -> None:
     """DataError naming `source` (the mask file, or the model that made the mask) when the tool
     mask `tool` (bool [H, W]) leaves no tissue pixel inside the field of view `fov` (bool
-    [H, W], None = every pixel)."""
+    [H, W], None = every pixel); `hint` is appended to the message."""
     if tool.all():
-        raise DataError(source, "marks every pixel as tool: no tissue is visible")
+        raise DataError(source, f"marks every pixel as tool: no tissue is visible{hint}")
     if fov is not None and not (fov & ~tool).any():
         raise DataError(source, f"marks every pixel inside the field of view ({FOV_FILE}) as "
-                                "tool: no tissue is visible")
+                                f"tool: no tissue is visible{hint}")
 
 
 def check_frame_headers(files: list[FrameFiles]) -> None:

@@ -94,7 +94,14 @@ def test_baseline_and_model_mean_refuse_nan(small_phantom, tmp_path, cli, one_er
 def test_phantom_seed_out_of_range_is_one_line(tmp_path, cli, one_error_line, seed):
     """Case 2: `phantom --seed -1` gave numpy's traceback."""
     line = one_error_line(cli("phantom", "--out", str(tmp_path / "p"), "--seed", seed))
-    assert f"seed must be an integer in 0..{2**32 - 1}, got {seed}" in line
+    assert f"--seed: the phantom seed must be an integer in 0..{2**32 - 1}, got {seed}" in line
+    assert not (tmp_path / "p").exists()
+
+
+def test_phantom_frames_out_of_range_is_one_line(tmp_path, cli, one_error_line):
+    """A mistyped frame count would ray-cast for days."""
+    line = one_error_line(cli("phantom", "--out", str(tmp_path / "p"), "--frames", "1000000"))
+    assert line == "error: --frames: the number of frames must be in 1..10000, got 1000000"
     assert not (tmp_path / "p").exists()
 
 
@@ -291,7 +298,8 @@ def test_single_class_masks_without_tool_labels_name_the_source_mask(small_phant
         cv2.imwrite(str(masks / f"{frame_stem(index)}.png"), np.full((128, 160), 50, np.uint8))
     out = tmp_path / "out"
     line = one_error_line(cli(*importing(small_phantom / "images", out, "--masks", str(masks))))
-    assert line == f"error: {masks / '000000.png'}: marks every pixel as tool: no tissue is visible"
+    assert line.startswith(f"error: {masks / '000000.png'}: marks every pixel as tool: no tissue "
+                           "is visible; class-ID masks are imported with their tool classes")
     assert not out.exists()
 
 

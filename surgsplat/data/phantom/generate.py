@@ -60,6 +60,9 @@ LIGHT_INTENSITY_FILE = f"{GT_DIR}/light_intensity.json"
 CAMERA_POSES_FILE = f"{GT_DIR}/camera_poses.npy"
 MAX_SEED = 2**32 - 1
 """Largest phantom seed: seeds are the unsigned 32-bit words of numpy's seed sequences."""
+MAX_FRAMES = 10_000
+"""Most frames of a phantom: an 11-minute clip at 15 frames/s, above any clip the benchmarks
+use (a mistyped count would otherwise ray-cast for days)."""
 
 
 @dataclass(frozen=True)
@@ -123,12 +126,13 @@ def check_phantom_request(config: PhantomConfig, out_dir: Path) -> tuple[Phantom
         raise SurgsplatError(f"unknown phantom lighting {config.lighting!r}; valid lightings: "
                              f"{', '.join(LIGHTINGS)}")
     if not 0 <= config.seed <= MAX_SEED:
-        raise SurgsplatError(f"the phantom seed must be an integer in 0..{MAX_SEED}, got "
-                             f"{config.seed}")
+        raise SurgsplatError(f"--seed: the phantom seed must be an integer in 0..{MAX_SEED}, "
+                             f"got {config.seed}")
     preset = PRESETS[config.preset]
     num_frames = preset.num_frames if config.num_frames is None else config.num_frames
-    if num_frames < 1:
-        raise SurgsplatError(f"number of frames must be at least 1, got {num_frames}")
+    if not 1 <= num_frames <= MAX_FRAMES:
+        raise SurgsplatError(f"--frames: the number of frames must be in 1..{MAX_FRAMES}, got "
+                             f"{num_frames}")
     out_dir = Path(out_dir)
     if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
         raise SurgsplatError(f"{out_dir} already exists and is not an empty folder; choose "
