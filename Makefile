@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.surgsplat-installed
 NATIVE_SOURCES := $(wildcard csrc/*.cpp csrc/*.h csrc/*/*.cpp csrc/*/*.h) CMakeLists.txt pyproject.toml
 
-.PHONY: demo test test-fast install clean aarch64-sysroot x86-64-v4-guest
+.PHONY: demo test test-fast docs install clean aarch64-sysroot x86-64-v4-guest
 
 install: $(STAMP)
 
@@ -16,7 +16,7 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python $(NATIVE_SOURCES)
 	$(BIN)/python -m pip install --quiet "scikit-build-core>=0.10" "nanobind>=2.0" "torch==2.13.0"
-	$(BIN)/python -m pip install --quiet --no-build-isolation -e ".[test,report,viewer,mesh,batch,sim,onnx,sfm]"
+	$(BIN)/python -m pip install --quiet --no-build-isolation -e ".[test,report,viewer,mesh,batch,sim,onnx,sfm,docs]"
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -29,6 +29,14 @@ test: $(STAMP)
 # processes of their own, real browsers, ISA variants this CPU only runs under emulation).
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"
+
+# The documentation site (mkdocs.yml, pages under docs/) into build/site, warnings as errors,
+# after checking that the pages' generated parts are current: the command references (from the
+# CLI) and the benchmark tables (from benchmarks/results/).
+docs: $(STAMP)
+	$(BIN)/python docs/gen_commands.py --check
+	$(BIN)/python benchmarks/readme_tables.py --check
+	$(BIN)/mkdocs build --strict
 
 # Debian's arm64 Python 3.11 and NumPy, unpacked (not installed) for tests/render/test_neon_replay.py,
 # which runs the cross-compiled NEON kernels under qemu-aarch64 on an x86-64 host (needs root).

@@ -11,9 +11,10 @@ issue 53 (fault_cases.py), each run as a user runs
 A case is handled when it ends as it should: one line `error: ...` naming the path, key or
 option at fault (or success, where the fault must be survived), no traceback, no hang, and the
 user's files byte-for-byte as they were. The report counts the cases handled and, over all of
-them, silent wrong results, overwritten user files, tracebacks and hangs. With PYTHONPATH set
-to an older checkout the cases run its code (the report records the commit): what the cases
-caught before their fixes.
+them, silent wrong results, overwritten user files, tracebacks and hangs. Run by an interpreter
+that imports an older checkout of surgsplat (the editable install's import hook removed and the
+checkout put first on sys.path, e.g. by a sitecustomize.py on PYTHONPATH), the cases run that
+code, and the report records its commit: what the cases caught before their fixes.
 
 One run of deform3dgs on the small phantom is killed `--trials` times, each time at a random
 moment in the two checkpoint intervals after training (re)started, and resumed with

@@ -1,11 +1,14 @@
-"""Writes the README's benchmark tables from the benchmark results: every
+"""Writes the benchmark tables of the documentation from the benchmark results: every
 benchmarks/results/<benchmark>-*.json becomes one table, placed between the
-`<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of README.md, for the
-benchmarks bench_render, bench_train, bench_densify_split, bench_threads, bench_outputs,
-bench_auto_masks, bench_shading_depth, bench_batch, bench_long_clip, bench_articulation,
-bench_faults, bench_onnx_models and bench_poses, and
-for every suite of bench_methods whose region `bench_methods_<suite>` the README has. No figure in those regions is typed by
-hand.
+`<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of the one page under docs/
+that holds them, for the benchmarks bench_render, bench_train, bench_densify_split,
+bench_threads, bench_outputs, bench_auto_masks, bench_shading_depth, bench_batch,
+bench_long_clip, bench_articulation, bench_faults, bench_onnx_models, bench_poses and
+bench_camera_grads (each must have its region in some page), for every suite of bench_methods
+whose region `bench_methods_<suite>` a page has, and for every region
+`preset_fidelity_<preset>` (a method page: that preset's rows and targets of the fidelity
+suite). No figure in those regions is typed by hand. The name is historical: the tables were
+the README's before they moved to docs/.
 
     python benchmarks/readme_tables.py [--check]
 """
@@ -14,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
 from pathlib import Path
@@ -307,23 +311,33 @@ def long_clip_validation_table(report: dict) -> str:
 
 def faults_table(report: dict) -> str:
     """Markdown for one bench_faults report: the work kill -9 lost, and where the report has
-    them, the cases of issue 30 handled per class with the totals of bad outcomes."""
-    lines = [
-        f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
-        f"{report['date'][:10]}: training killed with kill -9 {report['trials']} times "
-        f"(checkpoint every {report['checkpoint_seconds']:g} s) lost a median "
-        f"{report['lost_wall_s_median']:.1f} s of work, at most {report['lost_wall_s_max']:.1f} s; "
-        f"damaged checkpoints {report['checkpoints_damaged']}, final resume "
-        f"{'ok' if report['final_resume_ok'] else 'FAILED'}."]
-    cases = report.get("issue_30")
-    if cases:
-        lines += ["", f"Issue 30's classes against the CLI: {cases['handled']} of {cases['cases']} "
-                      f"cases handled; silent wrong results {cases['silent_wrong']}, overwritten "
-                      f"user files {cases['overwrote']}, tracebacks {cases['traceback']}, hangs "
-                      f"{cases['hang']}.", "", "| class | cases | handled |", "|---|---|---|"]
-        lines += [f"| {name} | {row['cases']} | {row['handled']} |"
-                  for name, row in cases["by_class"].items()]
-    return "\n".join(lines)
+    them, the fault cases of issues 30 and 53 handled per class with the totals of bad
+    outcomes, at the commit the cases ran."""
+    machine = (f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
+               f"{report['date'][:10]}")
+    code = f", code at {report['commit']}" if "commit" in report else ""
+    paragraphs = []
+    if "trials" in report:
+        paragraphs.append(
+            f"{machine}: training killed with kill -9 {report['trials']} times (checkpoint "
+            f"every {report['checkpoint_seconds']:g} s) lost a median "
+            f"{report['lost_wall_s_median']:.1f} s of work, at most "
+            f"{report['lost_wall_s_max']:.1f} s; damaged checkpoints "
+            f"{report['checkpoints_damaged']}, final resume "
+            f"{'ok' if report['final_resume_ok'] else 'FAILED'}.")
+    for group in ("issue_30", "issue_53"):
+        cases = report.get(group)
+        if not cases:
+            continue
+        rows = [f"| {name} | {row['cases']} | {row['handled']} |"
+                for name, row in cases["by_class"].items()]
+        paragraphs.append("\n".join([
+            f"Issue {group.split('_')[1]}'s classes against the CLI ({machine}{code}): "
+            f"{cases['handled']} of {cases['cases']} cases handled; silent wrong results "
+            f"{cases['silent_wrong']}, overwritten user files {cases['overwrote']}, tracebacks "
+            f"{cases['traceback']}, hangs {cases['hang']}.", "",
+            "| class | cases | handled |", "|---|---|---|", *rows]))
+    return "\n\n".join(paragraphs)
 
 
 def articulation_table(report: dict) -> str:
@@ -410,9 +424,10 @@ def onnx_models_table(report: dict) -> str:
     return "\n".join(lines)
 
 
-def train_table(report: dict) -> str:
+def train_table(report: dict, results: str = "benchmarks/results") -> str:
     """Markdown for one bench_train report: one row per case (times raw and scaled to the
-    reference probe), then issue 52's targets, then the plot of the curves."""
+    reference probe), then issue 52's targets, then the plot of the curves (a link into
+    `results`, the results folder relative to the page)."""
     system = report["system"]
     lines = [
         f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}, "
@@ -444,7 +459,7 @@ def train_table(report: dict) -> str:
         lines.append(f"| {target['rule']} | {measured} | {target['relation']} "
                      f"{target['bound']:.{digits}f} | {'yes' if target['met'] else '**no**'} |")
     lines += ["", f"![test psnr_tissue against scaled training seconds]"
-                  f"(benchmarks/results/{report['plot']})"]
+                  f"({results}/{report['plot']})"]
     return "\n".join(lines)
 
 
@@ -478,46 +493,94 @@ RENDERERS = {"bench_render": render_table, "bench_train": train_table,
              "bench_faults": faults_table, "bench_onnx_models": onnx_models_table,
              "bench_poses": poses_table, "bench_camera_grads": camera_grads_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
-"""A README region of one bench_methods suite, e.g. bench_methods_endoplanar."""
+"""A region of one bench_methods suite, e.g. bench_methods_endoplanar."""
+PRESET_FIDELITY = "preset_fidelity_"
+PRESET_FIDELITY_REGION = re.compile(rf"<!-- ({PRESET_FIDELITY}\w+):begin -->")
+"""A region of one preset's rows of the fidelity suite, e.g. preset_fidelity_endogsg."""
+DOCS = ROOT / "docs"
 
 
-def renderer(benchmark: str):
+def preset_fidelity_table(report: dict, preset: str) -> str:
+    """Markdown of one preset's rows of a fidelity suite report (the preset on every phantom it
+    ran on) with the columns those rows have, and the targets of those rows."""
+    rows = [row for row in report["rows"] if row.get("method") == preset]
+    if not rows:
+        sys.exit(f"no row of method {preset} in the fidelity results")
+    cases = {row["case"] for row in rows}
+    columns = [key for key in report["columns"] if any(row.get(key) is not None for row in rows)]
+    targets = [target for target in report.get("targets", []) if target["case"] in cases]
+    return methods_table({**report, "rows": rows, "columns": columns, "targets": targets})
+
+
+def renderer(benchmark: str, results: str):
+    """The function that turns one report of `benchmark`'s results into Markdown, for a page
+    from which the results folder is at the relative path `results`."""
+    if benchmark.startswith(PRESET_FIDELITY):
+        preset = benchmark.removeprefix(PRESET_FIDELITY)
+        return lambda report: preset_fidelity_table(report, preset)
+    if benchmark == "bench_train":
+        return lambda report: train_table(report, results)
     return methods_table if benchmark.startswith("bench_methods_") else RENDERERS[benchmark]
 
 
-def generated_region(benchmark: str) -> str:
+def generated_region(benchmark: str, page: Path) -> str:
+    source = ("bench_methods_fidelity" if benchmark.startswith(PRESET_FIDELITY) else benchmark)
     reports = [json.loads(path.read_text())
-               for path in sorted(RESULTS.glob(f"{benchmark}-*.json"))]
+               for path in sorted(RESULTS.glob(f"{source}-*.json"))]
     if not reports:
-        sys.exit(f"no {benchmark} results in {RESULTS}: run benchmarks/{benchmark}.py")
-    body = "\n\n".join(renderer(benchmark)(report) for report in reports)
+        sys.exit(f"no {source} results in {RESULTS}: run the benchmark that writes them")
+    render = renderer(benchmark, os.path.relpath(RESULTS, page.parent).replace(os.sep, "/"))
+    body = "\n\n".join(render(report) for report in reports)
     note = ("<!-- generated by benchmarks/readme_tables.py from benchmarks/results/; "
             "do not edit -->")
     return f"<!-- {benchmark}:begin -->\n{note}\n{body}\n<!-- {benchmark}:end -->"
 
 
-def replace_region(text: str, benchmark: str) -> str:
+def replace_region(text: str, benchmark: str, page: Path) -> str:
     begin, end = f"<!-- {benchmark}:begin -->", f"<!-- {benchmark}:end -->"
     if text.count(begin) != 1 or text.count(end) != 1:
-        sys.exit(f"README.md: expected one {begin} and one {end}")
+        sys.exit(f"{page.relative_to(ROOT)}: expected one {begin} and one {end}")
     head, rest = text.split(begin)
     _, tail = rest.split(end)
-    return head + generated_region(benchmark) + tail
+    return head + generated_region(benchmark, page) + tail
+
+
+def regions(text: str) -> list[str]:
+    """The generated regions a page holds."""
+    return [*(benchmark for benchmark in RENDERERS if f"<!-- {benchmark}:begin -->" in text),
+            *METHOD_SUITE_REGION.findall(text), *PRESET_FIDELITY_REGION.findall(text)]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true",
-                        help="exit 1 if README.md differs from the results instead of writing")
+                        help="exit 1 if a page under docs/ differs from the results instead of "
+                             "writing")
     args = parser.parse_args()
-    readme = ROOT / "README.md"
-    text = readme.read_text()
-    updated = text
-    for benchmark in [*RENDERERS, *METHOD_SUITE_REGION.findall(text)]:
-        updated = replace_region(updated, benchmark)
+    pages, placed = {}, {}
+    for page in sorted(DOCS.rglob("*.md")):
+        text = page.read_text()
+        found = regions(text)
+        for benchmark in found:
+            if benchmark in placed:
+                sys.exit(f"region {benchmark} is in both {placed[benchmark]} and "
+                         f"{page.relative_to(ROOT)}; keep one")
+            placed[benchmark] = page.relative_to(ROOT)
+        if found:
+            updated = text
+            for benchmark in found:
+                updated = replace_region(updated, benchmark, page)
+            pages[page] = (text, updated)
+    missing = [benchmark for benchmark in RENDERERS if benchmark not in placed]
+    if missing:
+        sys.exit(f"no page under docs/ has the region of {', '.join(missing)}")
+    stale = [page for page, (text, updated) in pages.items() if text != updated]
     if args.check:
-        sys.exit(0 if updated == text else "README.md is not up to date with benchmarks/results")
-    readme.write_text(updated)
+        sys.exit(0 if not stale else ", ".join(str(page.relative_to(ROOT)) for page in stale)
+                 + " not up to date with benchmarks/results: run benchmarks/readme_tables.py")
+    for page in stale:
+        page.write_text(pages[page][1])
+
 
 if __name__ == "__main__":
     main()

@@ -1,4 +1,5 @@
-"""The README's benchmark tables are generated from the committed results, never typed."""
+"""The benchmark tables of the documentation (docs/benchmarks/*.md and the method pages) are
+generated from the committed results by benchmarks/readme_tables.py, never typed."""
 
 import subprocess
 import sys
@@ -6,10 +7,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from readme_tables import train_table  # noqa: E402
+from readme_tables import preset_fidelity_table, train_table  # noqa: E402
 
 
-def test_readme_tables_match_the_committed_results():
+def test_the_pages_tables_match_the_committed_results():
     done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "readme_tables.py"),
                            "--check"], capture_output=True, text=True, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -40,3 +41,34 @@ def test_train_table_shows_each_case_the_targets_and_the_plot():
     assert "| endogsg: scaled seconds_to_minus_0p3db | not reached | <= 90 | **no** |" in lines
     assert lines[-1] == ("![test psnr_tissue against scaled training seconds]"
                          "(benchmarks/results/bench_train-amd-epyc-avx512.png)")
+
+
+def test_train_table_links_the_plot_relative_to_the_page():
+    report = {"cpu": "AMD EPYC", "system": {"logical_cpus": 2, "isa": "avx2"}, "threads": 2,
+              "date": "2026-12-01", "command": "python benchmarks/bench_train.py",
+              "reference_probe_evals_per_s": 3.5e9, "plot": "plot.png", "rows": [],
+              "targets": []}
+    assert train_table(report, "../../benchmarks/results").splitlines()[-1].endswith(
+        "(../../benchmarks/results/plot.png)")
+
+
+def test_preset_fidelity_table_keeps_one_method_its_columns_and_its_targets():
+    rows = [{"case": "endogsg", "method": "endogsg", "iterations": 3000, "psnr_tissue": 45.94,
+             "collisions": None},
+            {"case": "endogsg-moving", "method": "endogsg", "iterations": 3000,
+             "psnr_tissue": 45.87},
+            {"case": "drawer", "method": "drawer", "iterations": 3000, "psnr_tissue": 44.53,
+             "collisions": 18}]
+    targets = [{"case": "endogsg", "metric": "psnr_tissue", "value": 45.94, "bound": 46.3,
+                "rule": "psnr_tissue >= endogaussian -0.3", "met": False},
+               {"case": "drawer", "metric": "psnr_tissue", "value": 44.53, "bound": 45.64,
+                "rule": "psnr_tissue >= endogsg -0.3", "met": False}]
+    report = {"cpu": "AMD EPYC", "system": {"logical_cpus": 2, "isa": "avx512"},
+              "date": "2026-11-27", "command": "python benchmarks/bench_methods.py",
+              "columns": ["psnr_tissue", "collisions"], "rows": rows, "targets": targets}
+    lines = preset_fidelity_table(report, "endogsg").splitlines()
+    assert "| case | iterations | psnr_tissue |" in lines
+    assert "| endogsg | 3000 | 45.94 |" in lines
+    assert "| endogsg-moving | 3000 | 45.87 |" in lines
+    assert "| endogsg | psnr_tissue >= endogaussian -0.3 | 45.94 | 46.30 | **no** |" in lines
+    assert not [line for line in lines if "drawer" in line]
