@@ -38,7 +38,7 @@ from surgsplat.cli.batch_stages import (DONE, FAILED, RUN_DIR, STAGES, ClipJob, 
                                         trained_iterations)
 from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
-from surgsplat.methods.registry import PRESETS
+from surgsplat.methods.registry import DEFAULT_PRESET, PRESETS
 from surgsplat.train.run import run_lock
 
 SUMMARY_FILE = "summary.csv"
@@ -207,7 +207,7 @@ def batch_command(
     out: Annotated[Path, typer.Option(help="Batch folder: one sub-folder per clip, "
                                            "summary.csv, report.html.")],
     method: Annotated[str, typer.Option(help=f"Method preset: {', '.join(PRESETS)}.")] =
-        "deform3dgs",
+        DEFAULT_PRESET,
     iters: Annotated[int | None, typer.Option(help="Training iterations per clip (preset "
                                                     "default if omitted).")] = None,
     ray_address: Annotated[str | None, typer.Option(

@@ -15,7 +15,7 @@ from surgsplat.cli.train import train_with_progress
 from surgsplat.data.phantom.generate import PhantomConfig, generate_phantom
 from surgsplat.errors import SurgsplatError
 from surgsplat.export.report import write_report
-from surgsplat.methods.registry import PRESETS, method_config
+from surgsplat.methods.registry import DEFAULT_PRESET, PRESETS, method_config
 from surgsplat.train.run import load_trained_run, read_run_config, run_lock
 from surgsplat.train.trainer import CHECKPOINT
 
@@ -24,7 +24,8 @@ DEMO_ITERATIONS = 1500
 
 def demo_command(
     out: Annotated[Path, typer.Option(help="Folder for the phantom and the run.")] = Path("demo"),
-    method: Annotated[str, typer.Option(help=f"Method preset: {', '.join(PRESETS)}.")] = "deform3dgs",
+    method: Annotated[str, typer.Option(help=f"Method preset: {', '.join(PRESETS)}.")] =
+        DEFAULT_PRESET,
     iters: Annotated[int, typer.Option(help="Training iterations.")] = DEMO_ITERATIONS,
 ) -> None:
     """Generate the small phantom, train, evaluate against its ground truth, render videos and

@@ -17,7 +17,7 @@ from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import (dotted_keys, method_from_values, parse_assignment,
                                          read_config_file)
 from surgsplat.methods.ranges import check_config
-from surgsplat.methods.registry import PRESETS, method_config
+from surgsplat.methods.registry import DEFAULT_PRESET, PRESETS, method_config
 from surgsplat.pipeline.train import after_training, check_new_run_folder, fit, start_training
 from surgsplat.train.checkpoint import has_checkpoint
 from surgsplat.train.run import LOCK_FILE, read_run_config, run_lock
@@ -71,11 +71,11 @@ def check_length_given_once(iters: int | None, budget: float | None,
 
 def build_method_config(method: str | None, config_file: Path | None,
                         assignments: list[str]) -> MethodConfig:
-    """The preset `method` (default deform3dgs, or the one `config_file` names), with the file's
+    """The preset `method` (default DEFAULT_PRESET, or the one `config_file` names), with the file's
     values and then each `KEY=VALUE` assignment applied, type-checked; the rules between fields
     (`check_config`) are checked once all are in."""
     values = read_config_file(config_file) if config_file is not None else {}
-    name = values.get("name", method) or "deform3dgs"
+    name = values.get("name", method) or DEFAULT_PRESET
     if method is not None and name != method:
         raise SurgsplatError(f"{config_file}: configures method {name!r} but --method is "
                              f"{method!r}")
@@ -103,7 +103,7 @@ def new_run_folder(out: Path) -> Iterator[None]:
 
 def train_command(
     method: Annotated[str | None, typer.Option(
-        help=f"Method preset: {', '.join(PRESETS)} (default deform3dgs; see `surgsplat "
+        help=f"Method preset: {', '.join(PRESETS)} (default {DEFAULT_PRESET}; see `surgsplat "
              f"methods`).")] = None,
     data: Annotated[Path | None, typer.Option(help="EndoNeRF-layout scene folder.")] = None,
     out: Annotated[Path, typer.Option(help="Run folder to write.")] = Path("runs/latest"),

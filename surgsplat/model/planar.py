@@ -10,7 +10,7 @@
   (scene units), driving every Gaussian towards a disc. Its gradient is proportional to that
   scale, so it is inert on discs that start flat, as the paper's (s_3 = 0). On thick Gaussians
   it also reaches the basis widths that a Gaussian-basis deformation shares across channels,
-  and widens the motion curves (see `methods.registry.ENDOPLANAR_THICKNESS`).
+  and widens the motion curves (docs/methods/endoplanar.md gives the A/B).
 - Loss "normal" (Eq. 7-8): the L1 distance between the normalised rendered normal and the normal
   of the surface the rendered depth describes (from each pixel's four neighbours), weighted by
   (1 - |grad D|)^2 of the measured depth D. The paper leaves the gradient's unit open; here it is
