@@ -330,6 +330,9 @@ SPEED_CASES += (
     Case("endogaussian", "endogaussian", "pulling", base="deform3dgs"),
     Case("endogaussian-fast-hexplane", "endogaussian", "pulling", HEXPLANE_FAST,
          base="endogaussian"),
+    Case("deform3dgs-budget", "deform3dgs", "pulling", ("densify.kind=budget",)),
+    Case("deform3dgs-30k-points-budget", "deform3dgs", "pulling",
+         ("init.max_points=30000", "densify.kind=budget", "densify.budget_final=1.2")),
 )
 
 

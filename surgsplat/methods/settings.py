@@ -122,6 +122,15 @@ def iteration_window(start: float, stop: float, iterations: int) -> tuple[int, i
 class DensifyConfig:
     """When and how Gaussians are added and removed."""
 
+    kind: Literal["threshold", "budget"] = "threshold"
+    """Which Gaussians are cloned or split at each densification. threshold (3DGS): those whose
+    mean screen-space gradient is above grad_threshold. budget (Taming 3DGS's budgeted
+    densification): the count follows a schedule from the initial count to budget_final times
+    it at the end of the window, and each densification adds the Gaussians of the highest mean
+    gradient that the schedule allows, whatever their gradient."""
+    budget_final: float = field(default=1.1, metadata={"range": "[1, 100]"})
+    """kind budget: the Gaussian count at the end of the densification window, as a multiple of
+    the count when densification starts (within gaussians.max_gaussians)."""
     start: float = field(default=0.1, metadata={"range": "[0, 1]"})
     """Densification may run once this fraction of the run (of train.iterations) has passed."""
     stop: float = field(default=2 / 3, metadata={"range": "[0, 1]", "above": "start"})

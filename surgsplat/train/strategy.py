@@ -25,7 +25,9 @@ def no_factor() -> None:
 
 
 class DensifyStrategy:
-    """Explicit state: grad_sum [N], visible_count [N], max_radius [N] (pixels)."""
+    """Densification by threshold (DensifyConfig.kind "threshold"); the budget strategy is a
+    subclass that chooses differently. Explicit state: grad_sum [N], visible_count [N],
+    max_radius [N] (pixels), the statistics of the screen-space gradients it owns."""
 
     def __init__(self, config: DensifyConfig, scene_extent: float, max_gaussians: int,
                  iterations: int):
@@ -66,15 +68,21 @@ class DensifyStrategy:
         return iteration <= self.last
 
     def step_post_backward(self, iteration: int, model: GaussianModel,
-                           optimizer: torch.optim.Optimizer, screen_grad: Tensor,
-                           radii: Tensor, opacity_factor: Callable[[], Tensor | None] = no_factor
-                           ) -> None:
-        """screen_grad [N] NDC-scaled screen-space gradient norm of this step (already weighted);
-        radii [N] px; opacity_factor() gives the current [N] factor on sigmoid(opacity_logits)
-        that rendering applies (None = 1); it is asked only when densifying or resetting."""
+                           optimizer: torch.optim.Optimizer, absgrad: Tensor, image_size: int,
+                           radii: Tensor, weights: Tensor | None = None,
+                           opacity_factor: Callable[[], Tensor | None] = no_factor) -> None:
+        """absgrad [N]: the norm of each Gaussian's screen-space (pixel) position gradient this
+        step, which the strategy scales to NDC units by half the image's longer side
+        `image_size` (px) and multiplies by `weights` [N] (the components' densification
+        weights, None = 1); radii [N] px; opacity_factor() gives the current [N] factor on
+        sigmoid(opacity_logits) that rendering applies (None = 1); it is asked only when
+        densifying or resetting."""
         config = self.config
         if not self.gathers_statistics(iteration):
             return
+        screen_grad = absgrad * (0.5 * image_size)
+        if weights is not None:
+            screen_grad = screen_grad * weights
         self._ensure_size(model.num_gaussians)
         visible = radii > 0  # masked sums, not boolean indexing: no nonzero() per step
         self.grad_sum += torch.where(visible, screen_grad, 0.0)
@@ -94,16 +102,13 @@ class DensifyStrategy:
     def _densify(self, model: GaussianModel, optimizer: torch.optim.Optimizer,
                  factor: Tensor | None) -> None:
         config = self.config
-        room = self.max_gaussians - model.num_gaussians
+        room = self.room(model.num_gaussians)
         if room <= 0:
             return
         mean_grad = self.grad_sum / self.visible_count.clamp_min(1)
-        candidates = mean_grad > config.grad_threshold
         max_scale = model.params["log_scales"].exp().max(dim=1).values
         large = max_scale > config.percent_dense * self.scene_extent
-        clone, split = candidates & ~large, candidates & large
-        clone_idx = _strongest(clone, mean_grad, room)
-        split_idx = _strongest(split, mean_grad, max(room - clone_idx.numel(), 0) // 2)
+        clone_idx, split_idx = self.chosen(mean_grad, large, room)
         if clone_idx.numel():
             self._share_opacity(model, clone_idx, None if factor is None else factor[clone_idx])
         rows = {name: value[clone_idx] for name, value in model.per_gaussian().items()}
@@ -117,6 +122,21 @@ class DensifyStrategy:
             keep = torch.ones(model.num_gaussians, dtype=torch.bool)
             keep[split_idx] = False
             keep_gaussians(model, optimizer, keep)
+
+    def room(self, count: int) -> int:
+        """How many Gaussians a densification may add to `count`: up to the budget
+        max_gaussians."""
+        return self.max_gaussians - count
+
+    def chosen(self, mean_grad: Tensor, large: Tensor, room: int) -> tuple[Tensor, Tensor]:
+        """(clone indices, split indices) of this densification: the Gaussians whose mean
+        gradient (of mean_grad [N]) is above grad_threshold, small ones (not `large` [N]) cloned
+        and large ones split, the strongest first within `room` (a split adds one net)."""
+        candidates = mean_grad > self.config.grad_threshold
+        clone, split = candidates & ~large, candidates & large
+        clone_idx = _strongest(clone, mean_grad, room)
+        split_idx = _strongest(split, mean_grad, max(room - clone_idx.numel(), 0) // 2)
+        return clone_idx, split_idx
 
     @staticmethod
     def _share_opacity(model: GaussianModel, index: Tensor, factor: Tensor | None) -> None:
@@ -182,6 +202,57 @@ class DensifyStrategy:
             moment = optimizer.state.get(logits, {}).get(key)
             if moment is not None:
                 moment.zero_()
+
+
+class BudgetStrategy(DensifyStrategy):
+    """Budgeted densification (DensifyConfig.kind "budget", after Taming 3DGS): the Gaussian
+    count grows on a schedule, linearly over the densification window from the count at its
+    first densification to budget_final times that count, and each densification adds the
+    Gaussians of highest mean gradient that the schedule allows, without a threshold. Extra
+    state: start_count, the count at the first densification (0 until then)."""
+
+    def __init__(self, config: DensifyConfig, scene_extent: float, max_gaussians: int,
+                 iterations: int):
+        super().__init__(config, scene_extent, max_gaussians, iterations)
+        self.start_count = 0
+        self.iteration = 0
+
+    def state_dict(self) -> dict[str, Tensor | float]:
+        return {**super().state_dict(), "start_count": self.start_count}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.start_count = int(state["start_count"])
+
+    def step_post_backward(self, iteration: int, *args, **kwargs) -> None:
+        self.iteration = iteration
+        super().step_post_backward(iteration, *args, **kwargs)
+
+    def room(self, count: int) -> int:
+        """The scheduled count at this iteration less `count`, within max_gaussians."""
+        if self.start_count == 0:
+            self.start_count = count
+        progress = min(max((self.iteration - self.first) / max(self.last - self.first, 1), 0.0),
+                       1.0)
+        target = self.start_count * (1.0 + (self.config.budget_final - 1.0) * progress)
+        return min(int(target), self.max_gaussians) - count
+
+    def chosen(self, mean_grad: Tensor, large: Tensor, room: int) -> tuple[Tensor, Tensor]:
+        """The `room` Gaussians of highest mean gradient among those seen (each adds one net:
+        a clone, or two split children in place of their parent), small ones cloned and large
+        ones split."""
+        index = _strongest(self.visible_count > 0, mean_grad, room)
+        return index[~large[index]], index[large[index]]
+
+
+STRATEGIES = {"threshold": DensifyStrategy, "budget": BudgetStrategy}
+"""The densification strategy of each DensifyConfig.kind."""
+
+
+def build_strategy(config: DensifyConfig, scene_extent: float, max_gaussians: int,
+                   iterations: int) -> DensifyStrategy:
+    """The strategy that config.kind names, for a run of `iterations` steps."""
+    return STRATEGIES[config.kind](config, scene_extent, max_gaussians, iterations)
 
 
 def _strongest(candidates: Tensor, score: Tensor, limit: int) -> Tensor:

@@ -43,7 +43,7 @@ from surgsplat.render.rasterize import NonFiniteError
 from surgsplat.train.checkpoint import (build_components, load_latest_or_previous,
                                         model_from_state, model_state,
                                         optimizer_state_in_order, save_atomic)
-from surgsplat.train.strategy import DensifyStrategy
+from surgsplat.train.strategy import build_strategy
 
 CONFIG_FILE = "config.json"
 SCENE_FILE = "scene.txt"
@@ -212,8 +212,8 @@ class Trainer:
                                  "pixels; use a smaller factor")
         self.optimizer, self.schedules = self._build_optimizer()
         budget = self.config.gaussians.cap(info.width, info.height)
-        self.strategy = DensifyStrategy(self.config.densify, self.scene_extent, budget,
-                                        self.config.train.iterations)
+        self.strategy = build_strategy(self.config.densify, self.scene_extent, budget,
+                                       self.config.train.iterations)
         self.frame_generator = torch.Generator().manual_seed(self.config.train.seed)
         self._frame_queue: list[int] = []
         self._downscaled: dict[int, Frame] = {}  # frame index -> the frame at the current factor
@@ -316,15 +316,13 @@ class Trainer:
         if loss.requires_grad:  # not when every active term is a constant 0 on this frame
             loss.backward()
         if densifying:  # from this step's state, before the optimiser moves it
-            screen_grad = absgrad * (0.5 * max(camera.width, camera.height))
             densify_weights = self.model.densify_weights(context)
-            if densify_weights is not None:
-                screen_grad = screen_grad * densify_weights
         self.optimizer.step()
         if densifying:
             self.strategy.step_post_backward(self.iteration, self.model.gaussians,
-                                             self.optimizer, screen_grad,
-                                             output.projection.radii.detach(),
+                                             self.optimizer, absgrad,
+                                             max(camera.width, camera.height),
+                                             output.projection.radii.detach(), densify_weights,
                                              self.model.opacity_factor)
         self.model.after_step(self.iteration)
         self.elapsed += time.perf_counter() - started

@@ -10,7 +10,7 @@ from torch import Tensor
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.methods.settings import DensifyConfig
 from surgsplat.render.rotation import quaternion_to_matrix
-from surgsplat.train.strategy import DensifyStrategy
+from surgsplat.train.strategy import BudgetStrategy, DensifyStrategy, build_strategy
 
 
 def setup(log_scales: list[float], opacities: list[float], buffers: dict | None = None):
@@ -29,6 +29,8 @@ CONFIG = DensifyConfig(start=0.0, stop=1.0, every=1, grad_threshold=0.5,
                        percent_dense=0.01, opacity_reset_every=0)
 ITERATIONS = 100
 """Length of the runs the strategies of these tests are built for."""
+UNIT = 2
+"""Image size (px) at which the strategy's NDC scale, half the size, leaves a gradient as given."""
 
 
 def test_clone_small_and_split_large_high_gradient_gaussians():
@@ -38,7 +40,7 @@ def test_clone_small_and_split_large_high_gradient_gaussians():
     strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100,
                                iterations=ITERATIONS)
     grads = torch.tensor([1.0, 1.0, 0.1])
-    strategy.step_post_backward(1, model, optimizer, grads, torch.tensor([5, 5, 5]))
+    strategy.step_post_backward(1, model, optimizer, grads, UNIT, torch.tensor([5, 5, 5]))
     # 0 and 2 stay, 0 gains a clone, 1 is replaced by two children of scale 2 / 1.6.
     assert model.num_gaussians == 5
     scales = model.params["log_scales"].exp()[:, 0]
@@ -62,7 +64,7 @@ def test_buffers_follow_their_rows_through_clone_split_and_prune():
     strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100,
                                iterations=ITERATIONS)
     strategy.step_post_backward(1, model, optimizer, torch.tensor([1.0, 1.0, 0.1, 0.1]),
-                                torch.ones(4))
+                                UNIT, torch.ones(4))
     origin = model.buffer_dict["origin"]
     assert origin.dtype == torch.int64 and sorted(origin.tolist()) == [0, 0, 1, 1, 3]
     assert torch.equal(model.params["sh_dc"].detach(), colours[origin])
@@ -73,7 +75,7 @@ def test_prune_transparent_and_oversized():
     model, optimizer = setup([0.0, 0.0, math.log(20.0)], [0.001, 0.9, 0.9])
     strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=100,
                                iterations=ITERATIONS)
-    strategy.step_post_backward(1, model, optimizer, torch.zeros(3), torch.tensor([1, 1, 1]))
+    strategy.step_post_backward(1, model, optimizer, torch.zeros(3), UNIT, torch.tensor([1, 1, 1]))
     assert model.num_gaussians == 1
     assert torch.sigmoid(model.params["opacity_logits"][0]) > 0.5
 
@@ -82,7 +84,8 @@ def test_cap_limits_growth():
     model, optimizer = setup([math.log(0.1)] * 4, [0.9] * 4)
     strategy = DensifyStrategy(CONFIG, scene_extent=100.0, max_gaussians=6,
                                iterations=ITERATIONS)
-    strategy.step_post_backward(1, model, optimizer, torch.ones(4), torch.ones(4, dtype=torch.int32))
+    strategy.step_post_backward(1, model, optimizer, torch.ones(4), UNIT,
+                                torch.ones(4, dtype=torch.int32))
     assert model.num_gaussians == 6
 
 
@@ -92,7 +95,8 @@ def test_opacity_reset_caps_opacity():
     strategy = DensifyStrategy(config, scene_extent=10.0, max_gaussians=100,
                                iterations=ITERATIONS)
     for iteration in range(1, 6):
-        strategy.step_post_backward(iteration, model, optimizer, torch.zeros(2), torch.ones(2))
+        strategy.step_post_backward(iteration, model, optimizer, torch.zeros(2), UNIT,
+                                    torch.ones(2))
     opacity = torch.sigmoid(model.params["opacity_logits"])
     assert torch.allclose(opacity, torch.tensor([0.01, 0.005]), atol=1e-6)
 
@@ -109,7 +113,8 @@ def test_opacity_resets_fire_at_their_fraction_of_the_run_and_only_while_densify
     fired = []
     for iteration in range(1, iterations + 1):
         model.params["opacity_logits"].data.fill_(2.0)  # sigmoid 0.88: a reset caps it at 0.01
-        strategy.step_post_backward(iteration, model, optimizer, torch.zeros(1), torch.ones(1))
+        strategy.step_post_backward(iteration, model, optimizer, torch.zeros(1), UNIT,
+                                    torch.ones(1))
         if torch.sigmoid(model.params["opacity_logits"][0]) < 0.02:
             fired.append(iteration)
     assert fired == [round(0.3 * iterations), 2 * round(0.3 * iterations)]
@@ -123,7 +128,7 @@ def test_prune_and_clone_act_on_the_rendered_opacity_with_a_factor():
                                iterations=ITERATIONS)
     # the factor of the Gaussians present when asked (a clone is appended with its parent's 0.5)
     strategy.step_post_backward(
-        1, model, optimizer, torch.tensor([0.0, 1.0]), torch.ones(2),
+        1, model, optimizer, torch.tensor([0.0, 1.0]), UNIT, torch.ones(2),
         opacity_factor=lambda: torch.tensor([0.001] + [0.5] * (model.num_gaussians - 1)))
     assert model.num_gaussians == 2  # 0 pruned; 1 and its clone remain
     rendered = torch.sigmoid(model.params["opacity_logits"]) * 0.5
@@ -144,7 +149,7 @@ def split_one(scales: list[float], quat: list[float],
     config = dataclasses.replace(CONFIG, split=split)
     strategy = DensifyStrategy(config, scene_extent=100.0, max_gaussians=100,
                                iterations=ITERATIONS)
-    strategy.step_post_backward(1, model, optimizer, torch.ones(1), torch.ones(1))
+    strategy.step_post_backward(1, model, optimizer, torch.ones(1), UNIT, torch.ones(1))
     assert model.num_gaussians == 2
     return model, covariance
 
@@ -173,3 +178,51 @@ def test_sample_split_shrinks_every_axis_around_random_points():
     assert torch.allclose(scales, torch.tensor([[3.0, 1.5, 2.0]] * 2) / 1.6, rtol=1e-5)
     means = model.params["means"].detach()
     assert not torch.allclose(means[0] + means[1], torch.tensor([0.0, 2.0, 4.0]), atol=1e-3)
+
+
+def test_the_strategy_scales_gradients_to_ndc_and_weights_them():
+    """absgrad in pixels x half the image size, times the components' weights."""
+    model, optimizer = setup([-3.0, -3.0], [0.9, 0.9])
+    config = dataclasses.replace(CONFIG, every=1000)
+    strategy = DensifyStrategy(config, scene_extent=100.0, max_gaussians=100,
+                               iterations=ITERATIONS)
+    strategy.step_post_backward(1, model, optimizer, torch.tensor([0.01, 0.02]), 200,
+                                torch.ones(2), torch.tensor([1.0, 0.5]))
+    assert torch.allclose(strategy.grad_sum, torch.tensor([1.0, 1.0]))
+
+
+def test_the_kind_names_the_strategy():
+    for kind, strategy_class in (("threshold", DensifyStrategy), ("budget", BudgetStrategy)):
+        config = dataclasses.replace(CONFIG, kind=kind)
+        assert type(build_strategy(config, 100.0, 100, ITERATIONS)) is strategy_class
+
+
+def test_the_budget_adds_what_its_schedule_allows_highest_gradient_first():
+    """Ten Gaussians, a window over the whole run of 100 iterations growing the count to 1.5x:
+    at iteration 50 the schedule allows 12.5 -> 12, so the two of highest gradient (whatever the
+    threshold) are cloned; an unseen Gaussian is never chosen."""
+    model, optimizer = setup([-3.0] * 10, [0.9] * 10)
+    config = dataclasses.replace(CONFIG, kind="budget", budget_final=1.5, every=50,
+                                 grad_threshold=1e9)
+    strategy = build_strategy(config, scene_extent=100.0, max_gaussians=100,
+                              iterations=ITERATIONS)
+    grads = torch.tensor([0.1, 0.9, 0.2, 0.8, 0.3, 0.0, 0.0, 0.0, 0.0, 5.0])
+    radii = torch.tensor([1, 1, 1, 1, 1, 1, 1, 1, 1, 0])  # the last one unseen
+    first = model.params["means"].detach().clone()
+    for iteration in range(1, 51):
+        strategy.step_post_backward(iteration, model, optimizer, grads, UNIT, radii)
+    assert model.num_gaussians == 12
+    added = model.params["means"].detach()[10:]
+    assert {tuple(row.tolist()) for row in added} == {tuple(first[1].tolist()),
+                                                     tuple(first[3].tolist())}
+    assert strategy.state_dict()["start_count"] == 10
+
+
+def test_the_budget_is_resumed_from_its_state():
+    model, optimizer = setup([-3.0] * 4, [0.9] * 4)
+    config = dataclasses.replace(CONFIG, kind="budget", budget_final=2.0, every=10)
+    strategy = build_strategy(config, 100.0, 100, ITERATIONS)
+    strategy.step_post_backward(10, model, optimizer, torch.ones(4), UNIT, torch.ones(4))
+    resumed = build_strategy(config, 100.0, 100, ITERATIONS)
+    resumed.load_state_dict(strategy.state_dict())
+    assert resumed.start_count == 4
