@@ -79,18 +79,19 @@ def has_checkpoint(path: Path) -> bool:
     return path.is_file() or previous_path(path).is_file()
 
 
-def load_latest_or_previous(path: Path) -> tuple[dict, Path, DataError | None]:
-    """The checkpoint at `path`, or, when that one is missing or damaged, the one kept before
-    it: (state, the file it came from, the error that made `path` unusable or None). DataError
-    about `path` when neither loads."""
+def load_latest_or_previous(path: Path, entries: tuple[str, ...] = ()
+                            ) -> tuple[dict, Path, DataError | None]:
+    """The checkpoint at `path`, or, when that one is missing or damaged (`load_checkpoint`,
+    with `entries`), the one kept before it: (state, the file it came from, the error that made
+    `path` unusable or None). DataError about `path` when neither loads."""
     try:
-        return load_checkpoint(path), path, None
+        return load_checkpoint(path, entries), path, None
     except DataError as err:
         previous = previous_path(path)
         if not previous.is_file():
             raise
         try:
-            return load_checkpoint(previous), previous, err
+            return load_checkpoint(previous, entries), previous, err
         except DataError:
             raise err from None
 
@@ -109,14 +110,25 @@ def read_torch_file(path: Path, expected: str) -> Any:
                               "values") from err
 
 
-def load_checkpoint(path: Path) -> dict:
-    """Read a checkpoint written by save_atomic; DataError if it is missing, not one, or holds
-    values no training run saves (`check_checkpoint_values`)."""
+READ_ENTRIES = ("gaussians", "sh_degree", "iteration", "elapsed_seconds", "peak_rss_mb")
+"""Entries of a training checkpoint that reading its run (eval, render, export...) uses."""
+RESUME_ENTRIES = (*READ_ENTRIES, "optimizer", "strategy", "scene_extent", "frame_generator",
+                  "frame_queue", "torch_rng")
+"""Entries of a training checkpoint that resuming the training uses."""
+
+
+def load_checkpoint(path: Path, entries: tuple[str, ...] = ()) -> dict:
+    """Read a checkpoint written by save_atomic; DataError if it is missing, not one, lacks one
+    of `entries`, or holds values no training run saves (`check_checkpoint_values`)."""
     if not path.is_file():
         raise DataError(path, "checkpoint not found")
     state = read_torch_file(path, "a surgsplat checkpoint")
     if not isinstance(state, dict) or "iteration" not in state:
         raise DataError(path, "is not a surgsplat checkpoint (no 'iteration' entry)")
+    missing = [entry for entry in entries if entry not in state]
+    if missing:
+        raise DataError(path, f"is damaged: it has no {', '.join(repr(m) for m in missing)} "
+                              f"entr{'ies' if len(missing) > 1 else 'y'}, which training saves")
     check_checkpoint_values(state, path)
     return state
 

@@ -22,7 +22,8 @@ from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import method_from_values
 from surgsplat.methods.ranges import check_config
 from surgsplat.model.dynamic import SplatModel
-from surgsplat.train.checkpoint import load_checkpoint, model_from_state, previous_path
+from surgsplat.train.checkpoint import (READ_ENTRIES, load_checkpoint, model_from_state,
+                                        previous_path)
 from surgsplat.train.trainer import (CHECKPOINT, CONFIG_FILE, SCENE_FILE, SCENE_ID_FILE,
                                      scene_identity)
 
@@ -184,7 +185,7 @@ def load_trained_run(run_dir: Path, data_dir: Path | None = None) -> TrainedRun:
     scene = read_run_scene(run_dir, data_dir)
     path = run_dir / CHECKPOINT
     try:
-        state = load_checkpoint(path)
+        state = load_checkpoint(path, READ_ENTRIES)
     except DataError as err:
         if not previous_path(path).is_file():
             raise

@@ -40,8 +40,8 @@ from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GEOMETRY_KEYS, GaussianModel
 from surgsplat.model.init_points import initial_points
 from surgsplat.render.rasterize import NonFiniteError
-from surgsplat.train.checkpoint import (build_components, load_latest_or_previous,
-                                        model_from_state, model_state,
+from surgsplat.train.checkpoint import (RESUME_ENTRIES, build_components,
+                                        load_latest_or_previous, model_from_state, model_state,
                                         optimizer_state_in_order, save_atomic)
 from surgsplat.train.strategy import build_strategy
 
@@ -432,7 +432,7 @@ class Trainer:
         """Restore a checkpoint of this run (model, components, optimiser, strategy, sampling):
         the one at `path`, or the one kept before it when `path` is damaged, in which case the
         error about `path` is returned."""
-        state, path, damaged = load_latest_or_previous(path)
+        state, path, damaged = load_latest_or_previous(path, RESUME_ENTRIES)
         self.model = model_from_state(self.config, state, path)
         self.scene_extent = float(state["scene_extent"])
         self.optimizer, self.schedules = self._build_optimizer()

@@ -189,3 +189,34 @@ def test_alexnet_weights_that_are_not_weights_are_one_line(trained, tmp_path, cl
                            "ImageNet weights"), line
     assert "weights_only" not in line
 
+
+
+def test_a_checkpoint_missing_an_entry_is_named_and_resumed_from_before(small_phantom, tmp_path,
+                                                                       cli, one_error_line):
+    """A checkpoint without an entry training saves (here the optimiser's state) is damaged:
+    resume falls back to previous.pt; with no previous.pt, eval and resume name the entry."""
+    import shutil
+
+    import torch
+
+    from surgsplat.train.checkpoint import previous_path
+    from surgsplat.train.trainer import CHECKPOINT
+
+    run = tmp_path / "run"
+    trained = cli("train", "--data", str(small_phantom), "--out", str(run), "--iters", "4",
+                  "--set", "init.max_points=1500")
+    assert trained.returncode == 0, trained.stderr
+    latest = run / CHECKPOINT
+    shutil.copy(latest, previous_path(latest))
+    state = torch.load(latest, weights_only=True)
+    del state["optimizer"], state["elapsed_seconds"]
+    torch.save(state, latest)
+    resumed = cli("train", "--out", str(run), "--resume", "--iters", "6")
+    assert resumed.returncode == 0, resumed.stderr
+    torch.save(state, latest)
+    previous_path(latest).unlink()
+    line = one_error_line(cli("train", "--out", str(run), "--resume", "--iters", "8"))
+    assert line.startswith(f"error: {latest}: is damaged: it has no ") and "'optimizer'" in line
+    line = one_error_line(cli("eval", str(run), "--no-geometry"))
+    assert line == (f"error: {latest}: is damaged: it has no 'elapsed_seconds' entry, which "
+                    "training saves")
