@@ -226,3 +226,20 @@ def test_a_stopped_generation_leaves_nothing_half_written(tmp_path):
     assert list(tmp_path.iterdir()) == []  # neither the phantom nor its partial folder
     root = generate_phantom(PhantomConfig(preset="small", num_frames=4), tmp_path / "ph")
     assert (root / "poses_bounds.npy").is_file() and list(tmp_path.iterdir()) == [root]
+
+
+def test_a_phantom_written_meanwhile_by_another_process_is_named(tmp_path, monkeypatch):
+    """Two `phantom --out X` at once: the one that finishes second finds X written."""
+    from surgsplat.data.phantom import generate as module
+
+    write = module._write_phantom
+
+    def racing(config, preset, num_frames, folder, progress):
+        write(config, preset, num_frames, folder, progress)
+        (tmp_path / "out").mkdir()
+        (tmp_path / "out" / "images").mkdir()  # the other process's phantom, renamed in place
+
+    monkeypatch.setattr(module, "_write_phantom", racing)
+    with pytest.raises(SurgsplatError, match="another process wrote into it"):
+        generate_phantom(PhantomConfig(num_frames=1), tmp_path / "out")
+    assert [path.name for path in tmp_path.iterdir()] == ["out"]  # no partial folder left

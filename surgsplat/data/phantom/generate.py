@@ -27,6 +27,7 @@ static camera every pose is the identity and world = camera space.
 from __future__ import annotations
 
 import json
+import errno
 import os
 import shutil
 from collections.abc import Callable
@@ -153,10 +154,13 @@ def generate_phantom(config: PhantomConfig, out_dir: Path,
     shutil.rmtree(partial, ignore_errors=True)
     try:
         _write_phantom(config, preset, num_frames, partial, progress)
-        if final.exists():
+        if final.exists() and not any(final.iterdir()):
             final.rmdir()  # an empty folder (check_phantom_request refused any other)
         os.replace(partial, final)
     except OSError as err:
+        if err.errno in (errno.ENOTEMPTY, errno.EEXIST) and final.is_dir():
+            raise SurgsplatError(f"{final}: another process wrote into it while this phantom "
+                                 "was generated; choose another output folder") from None
         raise _naming_the_output(err, partial, final) from err
     finally:
         shutil.rmtree(partial, ignore_errors=True)
