@@ -63,7 +63,7 @@ import profile_train  # noqa: E402
 from bench_render import (PROBE_GAUSSIANS, PROBE_TILES, peak_rss_mb, results_path,  # noqa: E402
                           write_report)
 
-from surgsplat.cli.train import build_method_config  # noqa: E402
+from surgsplat.methods.overrides import build_method_config  # noqa: E402
 from surgsplat.data.importer import ImportConfig, import_scene  # noqa: E402
 from surgsplat.data.phantom import PhantomConfig, generate_phantom  # noqa: E402
 from surgsplat.data.scene import load_scene  # noqa: E402

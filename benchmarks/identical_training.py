@@ -26,7 +26,7 @@ import surgsplat  # noqa: F401  (before torch: sets OpenMP's wait policy, see su
 import torch
 from surgsplat.data.phantom import PhantomConfig, generate_phantom
 from surgsplat.data.scene import load_scene
-from surgsplat.cli.train import build_method_config
+from surgsplat.methods.overrides import build_method_config
 from surgsplat.methods.registry import PRESETS
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame

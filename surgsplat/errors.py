@@ -18,3 +18,11 @@ class DataError(SurgsplatError):
     def __reduce__(self):
         """Pickled as (path, problem), so it crosses process boundaries (Ray tasks)."""
         return type(self), (self.path, self.problem)
+
+
+def os_error_line(err: OSError) -> str:
+    """`<path>: <what>` for an OSError (the path when it names one)."""
+    what = err.strerror or str(err)
+    if err.filename is not None and err.filename2 is not None:
+        return f"{err.filename} -> {err.filename2}: {what}"
+    return f"{err.filename}: {what}" if err.filename is not None else what

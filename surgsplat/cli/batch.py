@@ -13,7 +13,7 @@ that an earlier batch finished from another source is refused.
 
 A failed clip is one line on the console (its stage and error, never a task's traceback), and
 the batch then exits with status 1; a second batch into a DIR in use is refused, and so is a
-batch whose tasks no node could hold (see `surgsplat.cli.batch_cluster`). A stop (Ctrl-C or
+batch whose tasks no node could hold (see `surgsplat.pipeline.batch_cluster`). A stop (Ctrl-C or
 SIGTERM) is one line saying how many clips finished; running the command again goes on.
 """
 
@@ -30,15 +30,15 @@ from rich.console import Console
 from rich.progress import TextColumn
 
 from surgsplat.atomic import write_text_atomic
-from surgsplat.cli.batch_cluster import (GIB, check_local_request, check_nodes_hold, connect,
-                                         ray_module, ray_nodes)
-from surgsplat.cli.batch_stages import (DONE, FAILED, RUN_DIR, STAGES, ClipJob, StageFailure,
-                                        attempt_stage, error_line, job_config, planned_iterations,
-                                        read_status, record_outcome, summary_row,
-                                        trained_iterations)
 from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.registry import DEFAULT_PRESET, PRESETS
+from surgsplat.pipeline.batch_cluster import (GIB, check_local_request, check_nodes_hold,
+                                              connect, ray_module, ray_nodes)
+from surgsplat.pipeline.batch_stages import (DONE, FAILED, RUN_DIR, STAGES, ClipJob,
+                                             StageFailure, attempt_stage, error_line, job_config,
+                                             planned_iterations, read_status, record_outcome,
+                                             summary_row, trained_iterations)
 from surgsplat.train.run import run_lock
 
 SUMMARY_FILE = "summary.csv"

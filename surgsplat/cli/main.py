@@ -18,7 +18,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from surgsplat.errors import SurgsplatError
+from surgsplat.errors import SurgsplatError, os_error_line
 
 app = typer.Typer(
     name="surgsplat",
@@ -76,14 +76,6 @@ def _register() -> None:
 def _terminate(signum: int, frame: object) -> None:
     """SIGTERM takes Ctrl-C's path: training checkpoints, then the command stops cleanly."""
     raise KeyboardInterrupt
-
-
-def os_error_line(err: OSError) -> str:
-    """`<path>: <what>` for an OSError (the path when it names one)."""
-    what = err.strerror or str(err)
-    if err.filename is not None and err.filename2 is not None:
-        return f"{err.filename} -> {err.filename2}: {what}"
-    return f"{err.filename}: {what}" if err.filename is not None else what
 
 
 def main() -> None:

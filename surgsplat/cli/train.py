@@ -14,10 +14,8 @@ from rich.progress import TextColumn
 from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.config import MethodConfig
-from surgsplat.methods.overrides import (dotted_keys, method_from_values, parse_assignment,
-                                         read_config_file)
-from surgsplat.methods.ranges import check_config
-from surgsplat.methods.registry import DEFAULT_PRESET, PRESETS, method_config
+from surgsplat.methods.overrides import build_method_config, dotted_keys, parse_assignment
+from surgsplat.methods.registry import DEFAULT_PRESET, PRESETS
 from surgsplat.pipeline.train import after_training, check_new_run_folder, fit, start_training
 from surgsplat.train.checkpoint import has_checkpoint
 from surgsplat.train.run import LOCK_FILE, read_run_config, run_lock
@@ -67,23 +65,6 @@ def check_length_given_once(iters: int | None, budget: float | None,
                        if dotted_keys(parse_assignment(text)) & RUN_LENGTH_KEYS]
     if options and len(given) > 1:
         raise SurgsplatError(f"{given[0]} and {given[1]} each set the run's length: give one")
-
-
-def build_method_config(method: str | None, config_file: Path | None,
-                        assignments: list[str]) -> MethodConfig:
-    """The preset `method` (default DEFAULT_PRESET, or the one `config_file` names), with the file's
-    values and then each `KEY=VALUE` assignment applied, type-checked; the rules between fields
-    (`check_config`) are checked once all are in."""
-    values = read_config_file(config_file) if config_file is not None else {}
-    name = values.get("name", method) or DEFAULT_PRESET
-    if method is not None and name != method:
-        raise SurgsplatError(f"{config_file}: configures method {name!r} but --method is "
-                             f"{method!r}")
-    config = method_from_values(values, method_config(name), str(config_file or "config"))
-    for text in assignments:
-        config = method_from_values(parse_assignment(text), config, where="--set")
-    check_config(config)
-    return config
 
 
 @contextmanager

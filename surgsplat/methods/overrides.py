@@ -21,9 +21,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 from surgsplat.errors import DataError, SurgsplatError
-from surgsplat.methods import registry  # noqa: F401  (its imports register every component kind)
 from surgsplat.methods.config import KIND_KEY, MethodConfig
-from surgsplat.methods.ranges import check_field
+from surgsplat.methods.ranges import check_config, check_field
+from surgsplat.methods.registry import DEFAULT_PRESET, method_config  # also registers every kind
 from surgsplat.model.component import ComponentConfig
 
 
@@ -204,3 +204,20 @@ def method_from_values(values: dict, preset: MethodConfig, where: str,
                 for key in ("components", "losses") if isinstance(values.get(key), dict)}
         preset = dataclasses.replace(preset, **kept)
     return apply_values(preset, values, where)
+
+
+def build_method_config(method: str | None, config_file: Path | None,
+                        assignments: list[str]) -> MethodConfig:
+    """The preset `method` (default DEFAULT_PRESET, or the one `config_file` names), with the file's
+    values and then each `KEY=VALUE` assignment applied, type-checked; the rules between fields
+    (`check_config`) are checked once all are in."""
+    values = read_config_file(config_file) if config_file is not None else {}
+    name = values.get("name", method) or DEFAULT_PRESET
+    if method is not None and name != method:
+        raise SurgsplatError(f"{config_file}: configures method {name!r} but --method is "
+                             f"{method!r}")
+    config = method_from_values(values, method_config(name), str(config_file or "config"))
+    for text in assignments:
+        config = method_from_values(parse_assignment(text), config, where="--set")
+    check_config(config)
+    return config

@@ -12,7 +12,7 @@ import typer
 from rich.console import Console
 
 from surgsplat.cli.batch import SUMMARY_FILE, batch_command, clip_jobs, run_batch, write_summary
-from surgsplat.cli.batch_stages import DONE, FAILED
+from surgsplat.pipeline.batch_stages import DONE, FAILED
 
 
 @pytest.fixture(scope="module")

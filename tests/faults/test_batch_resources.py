@@ -20,8 +20,8 @@ import pytest
 import ray
 
 from surgsplat.cli.batch import REPORT_FILE, SUMMARY_FILE, clip_jobs
-from surgsplat.cli.batch_cluster import GIB, Node, check_nodes_hold
-from surgsplat.cli.batch_stages import DONE, STATUS_FILE, record_status
+from surgsplat.pipeline.batch_cluster import GIB, Node, check_nodes_hold
+from surgsplat.pipeline.batch_stages import DONE, STATUS_FILE, record_status
 from surgsplat.errors import SurgsplatError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))

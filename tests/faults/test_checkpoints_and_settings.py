@@ -11,7 +11,7 @@ import shutil
 import pytest
 import torch
 
-from surgsplat.cli.train import build_method_config
+from surgsplat.methods.overrides import build_method_config
 from surgsplat.errors import SurgsplatError
 from surgsplat.train.checkpoint import load_checkpoint, previous_path
 from surgsplat.train.run import run_lock

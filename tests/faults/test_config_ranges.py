@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from surgsplat.cli.train import build_method_config
+from surgsplat.methods.overrides import build_method_config
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.methods.config import to_dict

@@ -25,13 +25,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from surgsplat.atomic import write_text_atomic
-from surgsplat.cli.main import os_error_line
-from surgsplat.cli.train import build_method_config
 from surgsplat.data.importer import ImportConfig, import_scene
 from surgsplat.data.layout import POSES_FILE
 from surgsplat.data.scene import load_scene
+from surgsplat.errors import os_error_line
 from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions
 from surgsplat.methods.config import MethodConfig
+from surgsplat.methods.overrides import build_method_config
 from surgsplat.pipeline.evaluate import evaluate
 from surgsplat.pipeline.render import write_run_videos
 from surgsplat.pipeline.train import train_run
