@@ -35,7 +35,7 @@ SEQUENTIAL = """
 import sys
 from pathlib import Path
 from surgsplat.cli.batch import clip_jobs, write_summary
-from surgsplat.cli.batch_stages import run_clip_here
+from surgsplat.pipeline.batch_stages import run_clip_here
 out, iters, threads, *clips = sys.argv[1:]
 jobs = clip_jobs([Path(c) for c in clips], Path(out), "deform3dgs", int(iters), int(threads), 15.0)
 for job in jobs:
