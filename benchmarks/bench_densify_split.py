@@ -16,7 +16,6 @@ reported. Results go to benchmarks/results/bench_densify_split-<cpu>-<best ISA>.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path

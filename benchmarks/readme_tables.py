@@ -207,7 +207,6 @@ def poses_table(report: dict) -> str:
     """Markdown for one bench_poses report: trajectory errors of SfM on the moving phantom
     against both truths beside the static camera's, then registration on CholecSeg8k."""
     phantom = report["phantom"]
-    sfm = phantom["sfm"]
     width, height = phantom["size_wh"]
     lines = [f"{report['cpu']} ({report['system']['logical_cpus']} logical CPUs), "
              f"{report['date'][:10]}, `{report['command']}`:", "",

@@ -23,7 +23,6 @@ Accepts numpy arrays or CPU tensors and computes in float64 with numpy / SciPy.
 from __future__ import annotations
 
 import numpy as np
-import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 

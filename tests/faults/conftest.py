@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import importlib
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -67,6 +68,22 @@ def run_patched(cli, patch: str, *args: str) -> subprocess.CompletedProcess:
         return cli(*args)
     finally:
         put_back(changed)
+
+
+@pytest.fixture(scope="module")
+def pristine(small_phantom, tmp_path_factory, cli):
+    """A run of 4 iterations with checkpoints at 2 and 4 (previous.pt holds iteration 2)."""
+    run = tmp_path_factory.mktemp("trained") / "run"
+    done = cli("train", "--data", str(small_phantom), "--out", str(run), "--iters", "4",
+               "--set", "train.checkpoint_every=2", *TRAIN_FAST)
+    assert done.returncode == 0, done.stderr
+    return run
+
+
+@pytest.fixture
+def trained(pristine, tmp_path):
+    """A copy of that run, which the test may change."""
+    return shutil.copytree(pristine, tmp_path / "run")
 
 
 def wait_for(condition, timeout: float = 120.0, what: str = "condition") -> None:

@@ -17,24 +17,7 @@ from surgsplat.train.checkpoint import load_checkpoint, previous_path
 from surgsplat.train.run import run_lock
 from surgsplat.train.trainer import CHECKPOINT, CONFIG_FILE
 
-from .conftest import TRAIN_FAST
 from .test_folders import READ_ONLY
-
-
-@pytest.fixture(scope="module")
-def pristine(small_phantom, tmp_path_factory, cli):
-    """A run of 4 iterations with checkpoints at 2 and 4 (previous.pt holds iteration 2)."""
-    run = tmp_path_factory.mktemp("trained") / "run"
-    done = cli("train", "--data", str(small_phantom), "--out", str(run), "--iters", "4",
-               "--set", "train.checkpoint_every=2", *TRAIN_FAST)
-    assert done.returncode == 0, done.stderr
-    return run
-
-
-@pytest.fixture
-def trained(pristine, tmp_path):
-    """A copy of that run, which the test may change."""
-    return shutil.copytree(pristine, tmp_path / "run")
 
 
 def cut_opacities(state: dict) -> str:
@@ -195,8 +178,6 @@ def test_a_checkpoint_missing_an_entry_is_named_and_resumed_from_before(small_ph
                                                                        cli, one_error_line):
     """A checkpoint without an entry training saves (here the optimiser's state) is damaged:
     resume falls back to previous.pt; with no previous.pt, eval and resume name the entry."""
-    import shutil
-
     import torch
 
     from surgsplat.train.checkpoint import previous_path

@@ -5,16 +5,13 @@ a traceback, and the last good checkpoint loads."""
 from __future__ import annotations
 
 import os
-import shutil
 import signal
-import subprocess
 
 import pytest
 
 from surgsplat.train.checkpoint import load_checkpoint, previous_path
 from surgsplat.train.trainer import CHECKPOINT
 
-from .conftest import TRAIN_FAST
 
 FULL_DISK = """
 import torch
@@ -50,22 +47,6 @@ def guarded_mkdir(path, *args, **kwargs):
     return real_mkdir(path, *args, **kwargs)
 builtins.open, os.open, os.mkdir = guarded_open, guarded_os_open, guarded_mkdir
 """
-
-
-@pytest.fixture(scope="module")
-def pristine(small_phantom, tmp_path_factory, cli):
-    """A run of 4 iterations with checkpoints at 2 and 4 (previous.pt holds iteration 2)."""
-    run = tmp_path_factory.mktemp("trained") / "run"
-    done = cli("train", "--data", str(small_phantom), "--out", str(run), "--iters", "4",
-               "--set", "train.checkpoint_every=2", *TRAIN_FAST)
-    assert done.returncode == 0, done.stderr
-    return run
-
-
-@pytest.fixture
-def trained(pristine, tmp_path):
-    """A copy of that run, which the test may change."""
-    return shutil.copytree(pristine, tmp_path / "run")
 
 
 @pytest.mark.slow  # the first writer trains in a process of its own until it is stopped
