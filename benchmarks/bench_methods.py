@@ -344,6 +344,9 @@ SPEED_CASES += (
          base="surgsplat"),
     Case("surgsplat-fewer-points-coarse-start", "surgsplat", "pulling",
          FEWER_POINTS_BUDGETED + COARSE_START, base="surgsplat"),
+    Case("deform3dgs-cholecseg8k", "deform3dgs", "cholecseg8k", base="deform3dgs-cholecseg8k"),
+    Case("deform3dgs-cholecseg8k-coarse-start", "deform3dgs", "cholecseg8k", COARSE_START,
+         base="deform3dgs-cholecseg8k"),
 )
 
 
