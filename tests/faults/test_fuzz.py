@@ -47,11 +47,11 @@ pytestmark = pytest.mark.slow
 FRAMES = 8
 """Frames of the small phantom in a drawn scene (one test frame: i % 8 == 1)."""
 SCALE = int(os.environ.get("SURGSPLAT_FUZZ_SCALE", "1"))
-FUZZ_SCENES = 300 * SCALE
+FUZZ_SCENES = 220 * SCALE
 """Scene folders drawn (each checked by `info`, and by `train` when `info` accepts it)."""
-FUZZ_OPTIONS = 150 * SCALE
+FUZZ_OPTIONS = 100 * SCALE
 """`train` option combinations drawn (each a `train` of the undamaged scene)."""
-FUZZ_COMMANDS = 250 * SCALE
+FUZZ_COMMANDS = 200 * SCALE
 """Option combinations of the other commands drawn (each reading the undamaged scene or a
 short run of it)."""
 CASE_SECONDS = 120
