@@ -47,6 +47,17 @@ def temporary_path(path: Path) -> Path:
                           f"{path.suffix}")
 
 
+def check_writable(path: Path) -> None:
+    """OSError naming `path` unless a file can be created beside it (a temporary, removed at
+    once): for a command that works a long time before it writes `path`."""
+    probe = temporary_path(path)
+    try:
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+    except OSError as err:
+        raise OSError(err.errno, err.strerror or str(err), str(path)) from None
+    os.unlink(probe)
+
+
 def is_running(pid: int) -> bool:
     """Whether process `pid` exists on this host."""
     try:

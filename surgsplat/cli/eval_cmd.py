@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from surgsplat.atomic import check_writable
 from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
 from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions
@@ -74,5 +75,6 @@ def eval_command(
     if frames not in ("test", "train"):
         raise SurgsplatError(f"--frames: expected test or train, got {frames!r}")
     with run_lock(run_dir):
+        check_writable(run_dir / METRICS_FILE)  # before the evaluation, not after it
         evaluate_and_report(run_dir, EvalOptions(alexnet_weights=alexnet_weights,
                                                  geometry=geometry, frames=frames), data)

@@ -85,7 +85,6 @@ def test_a_full_disk_keeps_the_last_checkpoint(trained, faults, cli):
     assert faults.strictly_increasing(faults.logged_iterations(trained))
 
 
-@pytest.mark.slow  # four commands, one a whole evaluation before its write is refused
 def test_a_read_only_folder_is_one_line(trained, small_phantom, tmp_path, faults):
     """Denied writes (EROFS from every write under the folder: tests run as root, for whom
     chmod does not make a folder read-only)."""
