@@ -89,7 +89,7 @@ class DensifyStrategy:
         self.visible_count += visible
         self.max_radius = torch.maximum(self.max_radius, radii.float())
         if iteration >= self.first and iteration % config.every == 0:
-            self._densify(model, optimizer, opacity_factor())
+            self._densify(iteration, model, optimizer, opacity_factor())
             self._prune(model, optimizer, opacity_factor())
             self._ensure_size(model.num_gaussians)
             self.grad_sum.zero_()
@@ -99,10 +99,10 @@ class DensifyStrategy:
             self._reset_opacity(model, optimizer)
 
     @torch.no_grad()
-    def _densify(self, model: GaussianModel, optimizer: torch.optim.Optimizer,
-                 factor: Tensor | None) -> None:
+    def _densify(self, iteration: int, model: GaussianModel,
+                 optimizer: torch.optim.Optimizer, factor: Tensor | None) -> None:
         config = self.config
-        room = self.room(model.num_gaussians)
+        room = self.room(model.num_gaussians, iteration)
         if room <= 0:
             return
         mean_grad = self.grad_sum / self.visible_count.clamp_min(1)
@@ -123,9 +123,9 @@ class DensifyStrategy:
             keep[split_idx] = False
             keep_gaussians(model, optimizer, keep)
 
-    def room(self, count: int) -> int:
-        """How many Gaussians a densification may add to `count`: up to the budget
-        max_gaussians."""
+    def room(self, count: int, iteration: int) -> int:
+        """How many Gaussians the densification at `iteration` may add to `count`: up to the
+        budget max_gaussians."""
         return self.max_gaussians - count
 
     def chosen(self, mean_grad: Tensor, large: Tensor, room: int) -> tuple[Tensor, Tensor]:
@@ -215,7 +215,6 @@ class BudgetStrategy(DensifyStrategy):
                  iterations: int):
         super().__init__(config, scene_extent, max_gaussians, iterations)
         self.start_count = 0
-        self.iteration = 0
 
     def state_dict(self) -> dict[str, Tensor | float]:
         return {**super().state_dict(), "start_count": self.start_count}
@@ -224,15 +223,11 @@ class BudgetStrategy(DensifyStrategy):
         super().load_state_dict(state)
         self.start_count = int(state["start_count"])
 
-    def step_post_backward(self, iteration: int, *args, **kwargs) -> None:
-        self.iteration = iteration
-        super().step_post_backward(iteration, *args, **kwargs)
-
-    def room(self, count: int) -> int:
-        """The scheduled count at this iteration less `count`, within max_gaussians."""
+    def room(self, count: int, iteration: int) -> int:
+        """The count scheduled at `iteration` less `count`, within max_gaussians."""
         if self.start_count == 0:
             self.start_count = count
-        progress = min(max((self.iteration - self.first) / max(self.last - self.first, 1), 0.0),
+        progress = min(max((iteration - self.first) / max(self.last - self.first, 1), 0.0),
                        1.0)
         target = self.start_count * (1.0 + (self.config.budget_final - 1.0) * progress)
         return min(int(target), self.max_gaussians) - count
