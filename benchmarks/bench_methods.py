@@ -348,6 +348,17 @@ SPEED_CASES += (
     Case("deform3dgs-cholecseg8k-coarse-start", "deform3dgs", "cholecseg8k", COARSE_START,
          base="deform3dgs-cholecseg8k"),
 )
+HEXPLANE_FAST_GRID = ("components.deformation.grid_lr=0.05", "components.deformation.lr_decay=0.01")
+"""HexPlane's planes at about 30x their rate, decayed 100x over the run (to 3x the rate they
+end at by default)."""
+SPEED_CASES += (
+    Case("endogaussian-1000", "endogaussian", "pulling", ("train.iterations=1000",),
+         base="endogaussian"),
+    Case("endogaussian-1000-fast-grid", "endogaussian", "pulling",
+         ("train.iterations=1000",) + HEXPLANE_FAST_GRID, base="endogaussian-1000"),
+    Case("endogaussian-fast-grid", "endogaussian", "pulling", HEXPLANE_FAST_GRID,
+         base="endogaussian"),
+)
 
 
 SUITES = {

@@ -6,8 +6,8 @@ bench_threads, bench_outputs, bench_auto_masks, bench_shading_depth, bench_batch
 bench_long_clip, bench_articulation, bench_faults, bench_onnx_models, bench_poses and
 bench_camera_grads (each must have its region in some page), for every suite of bench_methods
 whose region `bench_methods_<suite>` a page has, and for every region
-`preset_fidelity_<preset>` (a method page: that preset's rows and targets of the fidelity
-suite). No figure in those regions is typed by hand. The name is historical: the tables were
+`preset_<suite>_<preset>` (a method page: that preset's rows and targets of one bench_methods
+suite, e.g. preset_fidelity_endogsg or preset_speed_deform3dgs). No figure in those regions is typed by hand. The name is historical: the tables were
 the README's before they moved to docs/.
 
     python benchmarks/readme_tables.py [--check]
@@ -493,18 +493,27 @@ RENDERERS = {"bench_render": render_table, "bench_train": train_table,
              "bench_poses": poses_table, "bench_camera_grads": camera_grads_table}
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A region of one bench_methods suite, e.g. bench_methods_endoplanar."""
-PRESET_FIDELITY = "preset_fidelity_"
-PRESET_FIDELITY_REGION = re.compile(rf"<!-- ({PRESET_FIDELITY}\w+):begin -->")
-"""A region of one preset's rows of the fidelity suite, e.g. preset_fidelity_endogsg."""
+PRESET_REGION = re.compile(r"<!-- (preset_[a-z0-9]+_\w+):begin -->")
+"""A region of one preset's rows of one bench_methods suite, preset_<suite>_<preset>, e.g.
+preset_fidelity_endogsg."""
 DOCS = ROOT / "docs"
 
 
-def preset_fidelity_table(report: dict, preset: str) -> str:
-    """Markdown of one preset's rows of a fidelity suite report (the preset on every phantom it
-    ran on) with the columns those rows have, and the targets of those rows."""
+def preset_region_parts(benchmark: str) -> tuple[str, str] | None:
+    """The suite and the preset of a region preset_<suite>_<preset>; None for other regions."""
+    if not PRESET_REGION.fullmatch(f"<!-- {benchmark}:begin -->"):
+        return None
+    suite, preset = benchmark.removeprefix("preset_").split("_", 1)
+    return suite, preset
+
+
+def preset_table(report: dict, preset: str) -> str:
+    """Markdown of one preset's rows of a bench_methods suite report (the preset in every case
+    of the suite that trains it) with the columns those rows have, and the targets of those
+    rows."""
     rows = [row for row in report["rows"] if row.get("method") == preset]
     if not rows:
-        sys.exit(f"no row of method {preset} in the fidelity results")
+        sys.exit(f"no row of method {preset} in the {report.get('suite')} suite's results")
     cases = {row["case"] for row in rows}
     columns = [key for key in report["columns"] if any(row.get(key) is not None for row in rows)]
     targets = [target for target in report.get("targets", []) if target["case"] in cases]
@@ -514,16 +523,16 @@ def preset_fidelity_table(report: dict, preset: str) -> str:
 def renderer(benchmark: str, results: str):
     """The function that turns one report of `benchmark`'s results into Markdown, for a page
     from which the results folder is at the relative path `results`."""
-    if benchmark.startswith(PRESET_FIDELITY):
-        preset = benchmark.removeprefix(PRESET_FIDELITY)
-        return lambda report: preset_fidelity_table(report, preset)
+    if (parts := preset_region_parts(benchmark)) is not None:
+        return lambda report: preset_table(report, parts[1])
     if benchmark == "bench_train":
         return lambda report: train_table(report, results)
     return methods_table if benchmark.startswith("bench_methods_") else RENDERERS[benchmark]
 
 
 def generated_region(benchmark: str, page: Path) -> str:
-    source = ("bench_methods_fidelity" if benchmark.startswith(PRESET_FIDELITY) else benchmark)
+    parts = preset_region_parts(benchmark)
+    source = benchmark if parts is None else f"bench_methods_{parts[0]}"
     reports = [json.loads(path.read_text())
                for path in sorted(RESULTS.glob(f"{source}-*.json"))]
     if not reports:
@@ -547,7 +556,7 @@ def replace_region(text: str, benchmark: str, page: Path) -> str:
 def regions(text: str) -> list[str]:
     """The generated regions a page holds."""
     return [*(benchmark for benchmark in RENDERERS if f"<!-- {benchmark}:begin -->" in text),
-            *METHOD_SUITE_REGION.findall(text), *PRESET_FIDELITY_REGION.findall(text)]
+            *METHOD_SUITE_REGION.findall(text), *PRESET_REGION.findall(text)]
 
 
 def main() -> None:

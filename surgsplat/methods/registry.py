@@ -22,7 +22,7 @@ from surgsplat.losses.depth import DepthLossConfig
 from surgsplat.losses.photometric import PhotometricConfig
 from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.ranges import check_config
-from surgsplat.methods.settings import LossWeight
+from surgsplat.methods.settings import LossWeight, TrainConfig
 from surgsplat.model.camera_refine import CameraRefineConfig  # noqa: F401  (kind "camera_refine")
 from surgsplat.model.color_curves import ColorCurvesConfig
 from surgsplat.model.exposure import ExposureConfig
@@ -68,6 +68,10 @@ LUMISTATE_STAGE2 = 1 / 3
 illumination-transfer losses) starts, once geometry and reflectance have settled under the
 photometric loss."""
 
+COARSE_START_FRACTION = 0.1
+"""Fraction of deform3dgs's run trained on frames at half their size, before densification
+starts (train.coarse_fraction with train.coarse_factor 2)."""
+
 LUMISTATE_TIE_STOP = 2 / 3
 """Fraction of the run after which LumiState's illumination-transfer tie leaves the
 objective."""
@@ -111,13 +115,15 @@ def lumistate_stage2_losses() -> dict[str, LossWeight]:
 
 
 def deform3dgs() -> MethodConfig:
-    """Deform3DGS: Gaussian-basis deformation, L1 + D-SSIM and depth L1, MAPF point fusion."""
+    """Deform3DGS: Gaussian-basis deformation, L1 + D-SSIM and depth L1, MAPF point fusion,
+    the first COARSE_START_FRACTION of the run on half-size frames."""
     return MethodConfig(
         name="deform3dgs",
         components={"deformation": GaussianBasisConfig(), "color_curves": ColorCurvesConfig(),
                     "exposure": ExposureConfig(),
                     "photometric": PhotometricConfig(), "depth": DepthLossConfig()},
         losses={"photometric": LossWeight(1.0), "depth": LossWeight(DEPTH_WEIGHT)},
+        train=TrainConfig(coarse_fraction=COARSE_START_FRACTION, coarse_factor=2),
         init=InitConfig(fusion="mapf"))
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from readme_tables import preset_fidelity_table, train_table  # noqa: E402
+from readme_tables import preset_region_parts, preset_table, train_table  # noqa: E402
 
 
 def test_the_pages_tables_match_the_committed_results():
@@ -52,7 +52,7 @@ def test_train_table_links_the_plot_relative_to_the_page():
         "(../../benchmarks/results/plot.png)")
 
 
-def test_preset_fidelity_table_keeps_one_method_its_columns_and_its_targets():
+def test_preset_table_keeps_one_method_its_columns_and_its_targets():
     rows = [{"case": "endogsg", "method": "endogsg", "iterations": 3000, "psnr_tissue": 45.94,
              "collisions": None},
             {"case": "endogsg-moving", "method": "endogsg", "iterations": 3000,
@@ -66,9 +66,15 @@ def test_preset_fidelity_table_keeps_one_method_its_columns_and_its_targets():
     report = {"cpu": "AMD EPYC", "system": {"logical_cpus": 2, "isa": "avx512"},
               "date": "2026-11-27", "command": "python benchmarks/bench_methods.py",
               "columns": ["psnr_tissue", "collisions"], "rows": rows, "targets": targets}
-    lines = preset_fidelity_table(report, "endogsg").splitlines()
+    lines = preset_table(report, "endogsg").splitlines()
     assert "| case | iterations | psnr_tissue |" in lines
     assert "| endogsg | 3000 | 45.94 |" in lines
     assert "| endogsg-moving | 3000 | 45.87 |" in lines
     assert "| endogsg | psnr_tissue >= endogaussian -0.3 | 45.94 | 46.30 | **no** |" in lines
     assert not [line for line in lines if "drawer" in line]
+
+
+def test_a_preset_region_names_its_suite_and_its_preset():
+    assert preset_region_parts("preset_fidelity_endogsg") == ("fidelity", "endogsg")
+    assert preset_region_parts("preset_speed_deform3dgs") == ("speed", "deform3dgs")
+    assert preset_region_parts("bench_methods_speed") is None

@@ -74,8 +74,9 @@ def test_resume_without_latest_continues_from_previous(trained, cli):
      "losses.depth.start (0.5)"),
     (("components.deformation.num_basis=12", "components.deformation.max_basis=10"),
      "components.deformation.max_basis (10)", "components.deformation.num_basis (12)"),
-    (("train.coarse_factor=4",), "train.coarse_factor (4)", "train.coarse_fraction (0.0)"),
-    (("train.coarse_fraction=0.3",), "train.coarse_factor (1)", "train.coarse_fraction (0.3)"),
+    (("train.coarse_factor=4", "train.coarse_fraction=0"), "train.coarse_factor (4)",
+     "train.coarse_fraction (0.0)"),
+    (("train.coarse_factor=1",), "train.coarse_factor (1)", "train.coarse_fraction (0.1)"),
 ])
 def test_settings_that_contradict_each_other_are_one_line_naming_both(
         small_phantom, tmp_path, cli, faults, settings, first, second):
