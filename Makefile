@@ -22,13 +22,15 @@ $(STAMP): $(BIN)/python $(NATIVE_SOURCES)
 demo: $(STAMP)
 	$(BIN)/surgsplat demo
 
+# One worker per core (pytest-xdist); the tests of one module stay on one worker, which builds
+# the module's fixtures (trained runs) once.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q --durations=20
+	$(BIN)/python -m pytest -q -n auto --dist loadscope --durations=20
 
 # Development tier: everything but the tests marked slow (end-to-end runs, faults injected into
 # processes of their own, real browsers, ISA variants this CPU only runs under emulation).
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -n auto --dist loadscope -m "not slow"
 
 # The documentation site (mkdocs.yml, pages under docs/) into build/site, warnings as errors,
 # after checking that the pages' generated parts are current: the command references (from the

@@ -19,6 +19,19 @@ import surgsplat  # noqa: F401  (before torch: sets OpenMP's wait policy, see su
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 
+def pytest_configure(config):
+    """Under pytest-xdist (`make test` runs one worker per core), the workers share the cores:
+    each gives torch and the native kernels its share of them, and so do the commands it runs
+    in subprocesses, through OMP_NUM_THREADS."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        from surgsplat.render.native import set_threads
+
+        share = max(1, (os.cpu_count() or 1) // workers)
+        os.environ["OMP_NUM_THREADS"] = str(share)
+        set_threads(share)
+
+
 @pytest.fixture
 def shared_data() -> Path:
     """The real data samples beside the repository; skips the test when they are absent."""
