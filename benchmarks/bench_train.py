@@ -6,7 +6,7 @@ schedule.
     python benchmarks/bench_train.py [--presets deform3dgs surgsplat ...] [--threads 2]
                                      [--iters N] [--curve-every 100] [--set KEY=VALUE ...]
                                      [--profile] [--profile-iters 200] [--phantom DIR]
-                                     [--skip-real] [--work DIR] [--out FILE] [--json]
+                                     [--skip-real] [--work DIR] [--out FILE] [--merge] [--json]
 
 A case is one `Trainer` run of a preset (with the --set settings, as `surgsplat train --set`)
 in a child process with --threads threads of torch and of the native kernels, so that its peak
@@ -348,6 +348,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--skip-real", action="store_true", help="skip the CholecSeg8k clip")
     parser.add_argument("--out", type=Path, help="JSON file, the plot beside it (default: "
                         "benchmarks/results/bench_train-<cpu>-<best ISA>.json)")
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the rows of the results file for the cases this invocation "
+                             "does not run again (each keeps the date it was measured on)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--case", help=argparse.SUPPRESS)  # SCENE:PRESET:DIR, in a child process
     return parser.parse_args()
@@ -367,6 +370,14 @@ def cases(args) -> list[tuple[str, Path, str]]:
         print(f"note: {REAL_CLIP} not found; the real clip's cases are skipped", flush=True)
         return found
     return found + [(REAL, real_clip_scene(args.work), preset) for preset in real]
+
+
+def kept_rows(previous: dict, rows: list[dict]) -> list[dict]:
+    """The rows of the `previous` report whose (scene, preset) is not among `rows`, each with
+    the date it was measured on (its own, else its report's)."""
+    measured = {(row["scene"], row["preset"]) for row in rows}
+    return [{**row, "date": row.get("date", previous["date"][:10])} for row in previous["rows"]
+            if (row["scene"], row["preset"]) not in measured]
 
 
 def main() -> None:
@@ -391,11 +402,16 @@ def main() -> None:
         if args.profile:
             rows[-1]["profile"] = profile_case(scene_dir, preset, args)
             print_profile(rows[-1]["profile"])
+    out = args.out or results_path("bench_train", native.system_info())
+    today = time.strftime("%Y-%m-%d")
+    for row in rows:
+        row["date"] = today
+    if args.merge and out.is_file():
+        rows = kept_rows(json.loads(out.read_text()), rows) + rows
     targets = check_targets(rows)
     for checked in targets:
         print(f"target {checked['rule']}: {checked['value']} against {checked['bound']:g}, "
               f"{'met' if checked['met'] else 'NOT met'}")
-    out = args.out or results_path("bench_train", native.system_info())
     plot = out.with_suffix(".png")
     plot_curves(rows, plot)
     out = write_report("bench_train", {"threads": args.threads, "curve_every": args.curve_every,

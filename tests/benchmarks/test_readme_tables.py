@@ -35,7 +35,7 @@ def test_train_table_shows_each_case_the_targets_and_the_plot():
                            "relation": "<=", "bound": 90.0, "met": False}]}
     lines = train_table(report).splitlines()
     assert ("| phantom-full-pulling | surgsplat `train.coarse_factor=2` | 3000 | 46.01 | 40 | 45 "
-            "| 80 | 89 | 150 | 0.031 | 51234 | 61.3 |") in lines
+            "| 80 | 89 | 150 | 0.031 | 51234 | 61.3 | 2026-12-01 |") in lines
     assert "| surgsplat: scaled wall seconds | 130 | <= 120 | **no** |" in lines
     assert "| surgsplat: final psnr_tissue >= 45.71 dB | 46.01 | >= 45.71 | yes |" in lines
     assert "| endogsg: scaled seconds_to_minus_0p3db | not reached | <= 90 | **no** |" in lines
@@ -78,3 +78,15 @@ def test_a_preset_region_names_its_suite_and_its_preset():
     assert preset_region_parts("preset_fidelity_endogsg") == ("fidelity", "endogsg")
     assert preset_region_parts("preset_speed_deform3dgs") == ("speed", "deform3dgs")
     assert preset_region_parts("bench_methods_speed") is None
+
+
+def test_a_merged_train_report_keeps_the_other_cases_with_their_dates():
+    import bench_train
+
+    previous = {"date": "2026-11-27T21:32:15+00:00",
+                "rows": [{"scene": "phantom", "preset": "deform3dgs"},
+                         {"scene": "phantom", "preset": "surgsplat"},
+                         {"scene": "real", "preset": "surgsplat", "date": "2026-11-20"}]}
+    kept = bench_train.kept_rows(previous, [{"scene": "phantom", "preset": "deform3dgs"}])
+    assert kept == [{"scene": "phantom", "preset": "surgsplat", "date": "2026-11-27"},
+                    {"scene": "real", "preset": "surgsplat", "date": "2026-11-20"}]
