@@ -359,6 +359,16 @@ SPEED_CASES += (
     Case("endogaussian-fast-grid", "endogaussian", "pulling", HEXPLANE_FAST_GRID,
          base="endogaussian"),
 )
+HEXPLANE_FAST_TIME = ("components.deformation.time_grid_lr=0.05",
+                      "components.deformation.lr_decay=0.01")
+"""HexPlane's spatio-temporal planes at about 30x their rate, every rate of the field decayed
+100x over the run; the spatial planes and the MLP at their rates."""
+SPEED_CASES += (
+    Case("endogaussian-1000-fast-time", "endogaussian", "pulling",
+         ("train.iterations=1000",) + HEXPLANE_FAST_TIME, base="endogaussian-1000"),
+    Case("endogaussian-fast-time", "endogaussian", "pulling", HEXPLANE_FAST_TIME,
+         base="endogaussian"),
+)
 
 
 SUITES = {

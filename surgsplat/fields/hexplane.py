@@ -63,13 +63,17 @@ class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     mlp_depth: int = field(default=1, metadata={"range": "[1, inf)"})
     """Number of hidden layers of the MLP (each linear + ReLU)."""
     grid_lr: float = field(default=1.6e-3, metadata={"range": "[0, inf)"})
-    """Adam learning rate of the feature planes."""
+    """Adam learning rate of the spatial feature planes (xy, xz, yz)."""
+    time_grid_lr: float = field(default=1.6e-3, metadata={"range": "[0, inf)"})
+    """Adam learning rate of the spatio-temporal feature planes (xt, yt, zt), where the motion
+    is: they start at 1, leaving the spatial features unchanged, and a time row is moved only by
+    the frames near its time."""
     mlp_lr: float = field(default=1.6e-4, metadata={"range": "[0, inf)"})
     """Adam learning rate of the MLP."""
     lr_decay: float = field(default=0.1, metadata={"range": "(0, 1]"})
-    """Final over initial learning rate of the planes and the MLP (exponential decay over the
-    run, as 4DGS and EndoGaussian decay theirs). At a constant rate every step, fitted to one
-    frame, still moves the shared planes at the end of training, and the field stops wherever
+    """Final over initial learning rate of the planes (both kinds) and the MLP (exponential
+    decay over the run, as 4DGS and EndoGaussian decay theirs). At a constant rate every step,
+    fitted to one frame, still moves the shared planes at the end of training, and the field stops wherever
     the last frames left it: sub-pixel offsets (0.2-1 px on the full phantom) that differed
     from seed to seed and cost endogsg up to 3 dB of psnr_tissue on some seeds (issue 28).
     EndoGaussian's own configuration decays 100x; here 0.01 left the motion underfitted
@@ -168,10 +172,11 @@ class HexPlaneField(DeformationField):
         return {}
 
     def param_groups(self) -> list[ParamGroup]:
-        planes = [*self.spatial_planes, *self.time_planes]
         config = self.config
-        return [ParamGroup("hexplane_grid", planes, config.grid_lr,
+        return [ParamGroup("hexplane_grid", list(self.spatial_planes), config.grid_lr,
                            config.grid_lr * config.lr_decay),
+                ParamGroup("hexplane_time_grid", list(self.time_planes), config.time_grid_lr,
+                           config.time_grid_lr * config.lr_decay),
                 ParamGroup("hexplane_mlp", list(self.mlp.parameters()), config.mlp_lr,
                            config.mlp_lr * config.lr_decay)]
 

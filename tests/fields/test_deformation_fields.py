@@ -193,7 +193,9 @@ def test_hexplane_param_groups_cover_all_parameters_once():
     groups = field.param_groups()
     grouped = [p for group in groups for p in group.params]
     assert len(grouped) == len(set(map(id, grouped))) == len(list(field.parameters()))
-    assert {g.name for g in groups} == {"hexplane_grid", "hexplane_mlp"}
+    assert {g.name for g in groups} == {"hexplane_grid", "hexplane_time_grid", "hexplane_mlp"}
+    rates = {g.name: g.lr for g in groups}
+    assert rates["hexplane_time_grid"] == field.config.time_grid_lr
     assert set(field.loss_names()) == set(field.regularisation())
     assert field.per_gaussian_attributes(5) == {} and field.attribute_lrs() == {}
 

@@ -55,7 +55,8 @@ def test_loss_falls(small_phantom, tmp_path, method):
 
 
 @pytest.mark.parametrize("method, decaying, frozen", [
-    ("endogaussian", {"means", "hexplane_grid", "exposure"}, ("mlp_lr", "hexplane_mlp")),
+    ("endogaussian", {"means", "hexplane_grid", "hexplane_time_grid", "exposure"},
+     ("mlp_lr", "hexplane_mlp")),
     ("deform3dgs", {"means", "basis_weights", "basis_centres"},
      ("log_widths_lr", "basis_log_widths"))])
 def test_every_scheduled_rate_ends_at_its_final_rate_and_a_frozen_group_stays_frozen(
