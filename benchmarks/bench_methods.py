@@ -348,6 +348,15 @@ SPEED_CASES += (
     Case("deform3dgs-cholecseg8k-coarse-start", "deform3dgs", "cholecseg8k", COARSE_START,
          base="deform3dgs-cholecseg8k"),
 )
+FULL_SIZE_START = ("train.coarse_fraction=0", "train.coarse_factor=1")
+"""Every step at full size: deform3dgs as it was before its coarse start (COARSE_START), which
+the rows deform3dgs-coarse-before-densify and deform3dgs-cholecseg8k-coarse-start measured
+against the preset without it; the preset has it now, and these cases measure its absence."""
+SPEED_CASES += (
+    Case("deform3dgs-full-size-start", "deform3dgs", "pulling", FULL_SIZE_START),
+    Case("deform3dgs-cholecseg8k-full-size-start", "deform3dgs", "cholecseg8k", FULL_SIZE_START,
+         base="deform3dgs-cholecseg8k"),
+)
 HEXPLANE_FAST_GRID = ("components.deformation.grid_lr=0.05", "components.deformation.lr_decay=0.01")
 """HexPlane's planes at about 30x their rate, decayed 100x over the run (to 3x the rate they
 end at by default)."""
