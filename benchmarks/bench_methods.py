@@ -377,6 +377,10 @@ SPEED_CASES += (
          ("train.iterations=1000",) + HEXPLANE_FAST_TIME, base="endogaussian-1000"),
     Case("endogaussian-fast-time", "endogaussian", "pulling", HEXPLANE_FAST_TIME,
          base="endogaussian"),
+    Case("surgsplat-1000", "surgsplat", "pulling", ("train.iterations=1000",), base="surgsplat"),
+    Case("surgsplat-1000-fast-time", "surgsplat", "pulling",
+         ("train.iterations=1000",) + HEXPLANE_FAST_TIME, base="surgsplat-1000"),
+    Case("surgsplat-fast-time", "surgsplat", "pulling", HEXPLANE_FAST_TIME, base="surgsplat"),
 )
 
 
