@@ -7,8 +7,8 @@ bench_long_clip, bench_articulation, bench_faults, bench_onnx_models, bench_pose
 bench_camera_grads (each must have its region in some page), for every suite of bench_methods
 whose region `bench_methods_<suite>` a page has, and for every region
 `preset_<suite>_<preset>` (a method page: that preset's rows and targets of one bench_methods
-suite, e.g. preset_fidelity_endogsg or preset_speed_deform3dgs). No figure in those regions is typed by hand. The name is historical: the tables were
-the README's before they moved to docs/.
+suite, e.g. preset_fidelity_endogsg or preset_speed_deform3dgs). No figure in those regions is
+typed by hand. The name is historical: the tables were the README's before they moved to docs/.
 
     python benchmarks/readme_tables.py [--check]
 """

@@ -71,12 +71,12 @@ class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     mlp_lr: float = field(default=1.6e-4, metadata={"range": "[0, inf)"})
     """Adam learning rate of the MLP."""
     lr_decay: float = field(default=0.1, metadata={"range": "(0, 1]"})
-    """Final over initial learning rate of the planes (both kinds) and the MLP (exponential
-    decay over the run, as 4DGS and EndoGaussian decay theirs). At a constant rate every step,
-    fitted to one frame, still moves the shared planes at the end of training, and the field stops wherever
-    the last frames left it: sub-pixel offsets (0.2-1 px on the full phantom) that differed
-    from seed to seed and cost endogsg up to 3 dB of psnr_tissue on some seeds (issue 28).
-    EndoGaussian's own configuration decays 100x; here 0.01 left the motion underfitted
+    """Final over initial learning rate of the planes (both kinds) and the MLP (exponential decay
+    over the run, as 4DGS and EndoGaussian decay theirs). At a constant rate every step, fitted
+    to one frame, still moves the shared planes at the end of training, and the field stops
+    wherever the last frames left it: sub-pixel offsets (0.2-1 px on the full phantom) that
+    differed from seed to seed and cost endogsg up to 3 dB of psnr_tissue on some seeds (issue
+    28). EndoGaussian's own configuration decays 100x; here 0.01 left the motion underfitted
     (endogaussian, full phantom, 3000 iterations, seed 1: psnr_tissue 37.23 dB and depth RMSE
     0.20 mm, against 39.91 dB and 0.027 mm at 0.1)."""
     deform_color: bool = False

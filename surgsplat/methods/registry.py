@@ -68,13 +68,13 @@ LUMISTATE_STAGE2 = 1 / 3
 illumination-transfer losses) starts, once geometry and reflectance have settled under the
 photometric loss."""
 
-COARSE_START_FRACTION = 0.1
-"""Fraction of deform3dgs's run trained on frames at half their size, before densification
-starts (train.coarse_fraction with train.coarse_factor 2)."""
-
 LUMISTATE_TIE_STOP = 2 / 3
 """Fraction of the run after which LumiState's illumination-transfer tie leaves the
 objective."""
+
+COARSE_START_FRACTION = 0.1
+"""Fraction of deform3dgs's run trained on frames at half their size, before densification
+starts (train.coarse_fraction with train.coarse_factor 2)."""
 
 
 @dataclass(frozen=True)
