@@ -382,6 +382,10 @@ SPEED_CASES += (
          ("train.iterations=1000",) + HEXPLANE_FAST_TIME, base="surgsplat-1000"),
     Case("surgsplat-fast-time", "surgsplat", "pulling", HEXPLANE_FAST_TIME, base="surgsplat"),
 )
+SPEED_CASES += tuple(  # the other HexPlane presets, each beside itself
+    case for name in ("endogsg", "physiosplat", "drawer") for case in (
+        Case(name, name, "pulling", base=name),
+        Case(f"{name}-fast-time", name, "pulling", HEXPLANE_FAST_TIME, base=name)))
 
 
 SUITES = {

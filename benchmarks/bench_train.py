@@ -5,7 +5,7 @@ schedule.
 
     python benchmarks/bench_train.py [--presets deform3dgs surgsplat ...] [--threads 2]
                                      [--iters N] [--curve-every 100] [--set KEY=VALUE ...]
-                                     [--profile] [--profile-iters 200] [--phantom DIR]
+                                     [--profile] [--profile-iters N] [--phantom DIR]
                                      [--skip-real] [--work DIR] [--out FILE] [--merge] [--json]
 
 A case is one `Trainer` run of a preset (with the --set settings, as `surgsplat train --set`)
@@ -25,11 +25,14 @@ the in-process limit probe (bench_render's composite_probe) before and after tra
 every time is also given scaled to a probe of 3.5e9 evaluations per second (REFERENCE_PROBE):
 `<time>_scaled` = `<time>` x the median of the two probes / REFERENCE_PROBE.
 
-With --profile, each case is followed by a py-spy profile of --profile-iters iterations of the
-same preset on the same scene (benchmarks/profile_train.py): the shares of a training step's
-time per phase (data loading, deformation, projection and rasterisation forward and backward,
-D-SSIM forward and backward, other losses, the autograd engine, Adam, densification, the rest of
-the render, Python). Without py-spy it is skipped with a note.
+With --profile, each case is followed by a py-spy profile of the same run (the case's
+iterations, or --profile-iters) of the same preset on the same scene (benchmarks/profile_train.py):
+the shares of a training step's time per phase (data loading, deformation, projection and
+rasterisation forward and backward, D-SSIM forward and backward, other losses, the autograd
+engine, Adam, densification, the rest of the render, Python). A profile of the whole schedule
+covers its coarse and fine stages in their proportions; the tables give each phase's share of the
+case's scaled step seconds, and so what the steps would cost with one phase made free. Without
+py-spy it is skipped with a note.
 
 Results go to benchmarks/results/bench_train-<cpu>-<best ISA>.json (or --out) with a plot of the
 curves beside it (.png); benchmarks/readme_tables.py turns them into the README's table.
@@ -231,12 +234,12 @@ def case_in_subprocess(scene: str, scene_dir: Path, preset: str, args) -> dict:
     return {"scene": scene, **json.loads(done.stdout.strip().splitlines()[-1])}
 
 
-def profile_case(scene_dir: Path, preset: str, args) -> dict:
-    """profile_train's shares of a training step's samples per phase, over --profile-iters
+def profile_case(scene_dir: Path, preset: str, iterations: int, args) -> dict:
+    """profile_train's shares of a training step's samples per phase, over `iterations`
     iterations of `preset` on `scene_dir` with the case's threads and settings."""
-    profile = profile_train.profile_training(scene_dir, preset, args.profile_iters,
+    profile = profile_train.profile_training(scene_dir, preset, iterations,
                                              settings=args.set, threads=args.threads)
-    return {"iterations": args.profile_iters, "samples": profile["samples"],
+    return {"iterations": iterations, "samples": profile["samples"],
             "step_samples": profile["step_samples"], "step_shares": profile["shares_in_steps"]}
 
 
@@ -339,8 +342,8 @@ def parse_args() -> argparse.Namespace:
                         help="a setting of every case's method, as `surgsplat train --set`")
     parser.add_argument("--profile", action="store_true",
                         help="after each case, profile a short run of it with py-spy")
-    parser.add_argument("--profile-iters", type=int, default=200,
-                        help="iterations of each profiled run")
+    parser.add_argument("--profile-iters", type=int, default=None,
+                        help="iterations of each profiled run (default: the case's own)")
     parser.add_argument("--phantom", type=Path, default=None,
                         help="existing full pulling phantom (default: generated under --work)")
     parser.add_argument("--work", type=Path,
@@ -400,7 +403,8 @@ def main() -> None:
         rows.append(case_in_subprocess(scene, scene_dir, preset, args))
         print_row(rows[-1])
         if args.profile:
-            rows[-1]["profile"] = profile_case(scene_dir, preset, args)
+            iterations = args.profile_iters or rows[-1]["iterations"]
+            rows[-1]["profile"] = profile_case(scene_dir, preset, iterations, args)
             print_profile(rows[-1]["profile"])
     out = args.out or results_path("bench_train", native.system_info())
     today = time.strftime("%Y-%m-%d")

@@ -425,8 +425,9 @@ def onnx_models_table(report: dict) -> str:
 
 def train_table(report: dict, results: str = "benchmarks/results") -> str:
     """Markdown for one bench_train report: one row per case (times raw and scaled to the
-    reference probe), then issue 52's targets, then the plot of the curves (a link into
-    `results`, the results folder relative to the page)."""
+    reference probe), then issue 52's targets, the phases of each case profiled over its whole
+    run, then the plot of the curves (a link into `results`, the results folder relative to the
+    page)."""
     system = report["system"]
     lines = [
         f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}, "
@@ -457,9 +458,38 @@ def train_table(report: dict, results: str = "benchmarks/results") -> str:
         measured = "not reached" if target["value"] is None else f"{target['value']:.{digits}f}"
         lines.append(f"| {target['rule']} | {measured} | {target['relation']} "
                      f"{target['bound']:.{digits}f} | {'yes' if target['met'] else '**no**'} |")
+    for row in report["rows"]:  # a profile of the first iterations only is left in the JSON
+        if row.get("profile", {}).get("iterations") == row["iterations"]:
+            lines += ["", *step_phases_table(row, report["reference_probe_evals_per_s"])]
     lines += ["", f"![test psnr_tissue against scaled training seconds]"
                   f"({results}/{report['plot']})"]
     return "\n".join(lines)
+
+
+RASTERISER_PHASES = ("rasterize forward", "rasterize backward")
+
+
+def step_phases_table(row: dict, reference_probe: float) -> list[str]:
+    """Markdown lines of one bench_train row's profile: each phase's share of a training step
+    and its scaled seconds over the row's steps (its share of seconds_per_iter x iterations),
+    then the rasteriser's forward and backward together and everything else."""
+    profile = row["profile"]
+    steps_scaled = (row["seconds_per_iter"] * row["iterations"] * row["probe_evals_per_s"]
+                    / reference_probe)
+    shares = profile["step_shares"]
+    rasteriser = sum(shares.get(phase, 0.0) for phase in RASTERISER_PHASES)
+    lines = [f"Where a step of {row['preset']} on {row['scene']} goes (py-spy, "
+             f"{profile['step_samples']} samples over {profile['iterations']} iterations); "
+             f"scaled s = the share of the {steps_scaled:.0f} scaled seconds of its "
+             f"{row['iterations']} steps:", "",
+             "| phase | share of a step | scaled s |", "|---|---|---|"]
+    lines += [f"| {phase} | {share:.1%} | {share * steps_scaled:.1f} |"
+              for phase, share in shares.items()]
+    lines += [f"| **rasteriser, forward and backward** | {rasteriser:.1%} "
+              f"| {rasteriser * steps_scaled:.1f} |",
+              f"| **everything else** | {1 - rasteriser:.1%} "
+              f"| {(1 - rasteriser) * steps_scaled:.1f} |"]
+    return lines
 
 
 def densify_split_table(report: dict) -> str:

@@ -7,7 +7,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from readme_tables import preset_region_parts, preset_table, train_table  # noqa: E402
+from readme_tables import (preset_region_parts, preset_table, step_phases_table,  # noqa: E402
+                           train_table)
 
 
 def test_the_pages_tables_match_the_committed_results():
@@ -22,7 +23,7 @@ def test_train_table_shows_each_case_the_targets_and_the_plot():
            "seconds_to_minus_1db": 40.4, "seconds_to_minus_1db_scaled": 44.6,
            "seconds_to_minus_0p3db": 80.2, "seconds_to_minus_0p3db_scaled": 88.9,
            "wall_seconds_scaled": 150.3, "seconds_per_iter": 0.0312, "num_gaussians": 51234,
-           "render_fps": 61.26}
+           "render_fps": 61.26, "profile": {"iterations": 200}}  # the first 200: not shown
     report = {"cpu": "AMD EPYC", "system": {"logical_cpus": 2, "isa": "avx512"}, "threads": 2,
               "date": "2026-12-01T10:00:00+00:00", "command": "python benchmarks/bench_train.py",
               "reference_probe_evals_per_s": 3.5e9, "plot": "bench_train-amd-epyc-avx512.png",
@@ -39,6 +40,7 @@ def test_train_table_shows_each_case_the_targets_and_the_plot():
     assert "| surgsplat: scaled wall seconds | 130 | <= 120 | **no** |" in lines
     assert "| surgsplat: final psnr_tissue >= 45.71 dB | 46.01 | >= 45.71 | yes |" in lines
     assert "| endogsg: scaled seconds_to_minus_0p3db | not reached | <= 90 | **no** |" in lines
+    assert not any(line.startswith("Where a step") for line in lines)
     assert lines[-1] == ("![test psnr_tissue against scaled training seconds]"
                          "(benchmarks/results/bench_train-amd-epyc-avx512.png)")
 
@@ -50,6 +52,20 @@ def test_train_table_links_the_plot_relative_to_the_page():
               "targets": []}
     assert train_table(report, "../../benchmarks/results").splitlines()[-1].endswith(
         "(../../benchmarks/results/plot.png)")
+
+
+def test_step_phases_table_gives_each_phase_its_scaled_seconds_and_the_rasteriser_apart():
+    row = {"scene": "phantom-full-pulling", "preset": "deform3dgs", "iterations": 1000,
+           "seconds_per_iter": 0.05, "probe_evals_per_s": 7e9,  # steps: 50 s, 100 scaled
+           "profile": {"iterations": 1000, "step_samples": 4000,
+                       "step_shares": {"rasterize backward": 0.25, "rasterize forward": 0.15,
+                                       "Adam (optimiser)": 0.6}}}
+    lines = step_phases_table(row, 3.5e9)
+    assert "the share of the 100 scaled seconds of its 1000 steps" in lines[0]
+    assert "| rasterize backward | 25.0% | 25.0 |" in lines
+    assert "| Adam (optimiser) | 60.0% | 60.0 |" in lines
+    assert "| **rasteriser, forward and backward** | 40.0% | 40.0 |" in lines
+    assert lines[-1] == "| **everything else** | 60.0% | 60.0 |"
 
 
 def test_preset_table_keeps_one_method_its_columns_and_its_targets():
