@@ -93,7 +93,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_render import results_path  # noqa: E402
 
 from surgsplat.atomic import write_text_atomic  # noqa: E402
-from surgsplat.methods import registry  # noqa: E402
+from surgsplat.methods.endogsg.preset import ENDO_GSG_GAMMA, endogsg  # noqa: E402
 from surgsplat.render.native import system_info  # noqa: E402
 
 SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
@@ -174,9 +174,9 @@ specular lobe alone."""
 ENDO_GSG_SDF_LOSSES = ("eikonal", "projection", "orientation", "sda")
 SURGSPLAT_WITH_SDF = (
     'components.sdf={"kind": "sdf"}',
-    f"components.photometric.occlusion_gamma={registry.ENDO_GSG_GAMMA}",
-    f"components.depth.occlusion_gamma={registry.ENDO_GSG_GAMMA}",
-    *(f"losses.{term}={json.dumps(asdict(registry.endogsg().losses[term]))}"
+    f"components.photometric.occlusion_gamma={ENDO_GSG_GAMMA}",
+    f"components.depth.occlusion_gamma={ENDO_GSG_GAMMA}",
+    *(f"losses.{term}={json.dumps(asdict(endogsg().losses[term]))}"
       for term in ENDO_GSG_SDF_LOSSES))
 """The `surgsplat` preset with Endo-GSG's part added: its SDF, the SDF's losses and the occlusion
 importance map, at the endogsg preset's values (what the preset had before issue 33's

@@ -45,7 +45,7 @@ CATEGORIES = {  # name: stack markers; a sample takes the first category that ma
     "rasterize forward": ("rasterize_forward", "render/rasterize.py"),
     "D-SSIM backward": ("ssim_backward", "_NativeSSIMScore.backward", "_NativeSSIMMap.backward"),
     "D-SSIM forward": ("ssim_forward", "image/ssim.py"),
-    "other losses": ("losses/", "SplatModel.losses", "image/normal_consistency.py"),
+    "other losses": ("losses/", "SplatModel.losses", "normal_consistency.py"),
     "Adam (optimiser)": ("optim/adam.py", "_fused_adam", "optim/optimizer.py"),
     "densify / prune": ("train/strategy.py", "SplatModel.densify_weights"),
     "rest of render": ("render/", "SplatModel.render"),

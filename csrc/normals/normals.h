@@ -1,6 +1,6 @@
-// EndoPlanar's normal consistency (Eq. 7-8, surgsplat/image/normal_consistency.py), forward and
-// backward over the pixels of one image. Per interior pixel p = (i, j), with the back-projected
-// points P(i, j) = depth(i, j) * (ray_x[j], ray_y[i], 1):
+// EndoPlanar's normal consistency (Eq. 7-8, surgsplat/methods/endoplanar/normal_consistency.py),
+// forward and backward over the pixels of one image. Per interior pixel p = (i, j), with the
+// back-projected points P(i, j) = depth(i, j) * (ray_x[j], ray_y[i], 1):
 //   h = P(i, j+1) - P(i, j-1),  v = P(i+1, j) - P(i-1, j),  c = h x v,
 //   n_depth = sign(c . P(i, j)) c / |c|  (facing away from the camera; sign(0) = +1),
 //   n_render = normals(p) / max(|normals(p)|, 1e-12)  (torch.nn.functional.normalize),

@@ -10,14 +10,15 @@ from rich.console import Console
 from rich.table import Table
 
 from surgsplat.methods.config import to_dict
-from surgsplat.methods.registry import PRESETS, method_config
+from surgsplat.methods.registry import PRESETS, UNLOADABLE, method_config
 
 
 def methods_command(
     show: Annotated[str | None, typer.Argument(
         help="Print this preset's full configuration as JSON (usable with --config).")] = None,
 ) -> None:
-    """List the method presets, or print one preset's configuration."""
+    """List the method presets (those of installed packages too), or print one preset's
+    configuration."""
     console = Console()
     if show is not None:
         console.print_json(json.dumps(to_dict(method_config(show))))
@@ -31,3 +32,5 @@ def methods_command(
                                for key, value in preset.build().components.items())
         table.add_row(name, components, preset.description)
     console.print(table)
+    for name, error in UNLOADABLE.items():
+        console.print(f"not loaded: method {name!r}: {error}", markup=False, highlight=False)

@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from surgsplat.image.pinhole import depth_normals
-from surgsplat.model.planar import NORMAL_CHANNEL
+from surgsplat.model.channels import NORMAL
 from surgsplat.render.render import RenderOutput
 
 MIN_ALPHA = 0.5
@@ -23,8 +23,8 @@ MIN_ALPHA = 0.5
 def surface_normals(output: RenderOutput, K: Tensor) -> tuple[Tensor, Tensor, str]:
     """Unit camera-space normals [H, W, 3], valid [H, W] bool, and their source ("rendered"
     or "depth") of a render with intrinsics K [3, 3]."""
-    if NORMAL_CHANNEL in output.extras:
-        return (*rendered_normals(output.extras[NORMAL_CHANNEL], output.alpha), "rendered")
+    if NORMAL in output.extras:
+        return (*rendered_normals(output.extras[NORMAL], output.alpha), "rendered")
     normals, valid = depth_normals(output.depth, K)
     return normals, valid & (output.alpha > MIN_ALPHA), "depth"
 

@@ -1,11 +1,13 @@
 """A method is one typed configuration: named components plus the settings every method has.
-Presets (registry.py) only change its values; `overrides.py` applies a user's changes.
+A method's package names its preset (`Preset`), which only sets values; `overrides.py` applies a
+user's changes.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -64,3 +66,12 @@ def to_dict(config: Any) -> Any:
     if isinstance(config, (tuple, list)):
         return [to_dict(value) for value in config]
     return config
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named method, as a method's package declares it (its `PRESET`): a one-line
+    description, and the function that builds the whole config (no preset edits another)."""
+
+    description: str
+    build: Callable[[], MethodConfig]

@@ -7,7 +7,7 @@ import torch
 
 from surgsplat.image.pinhole import pixel_rays
 from surgsplat.render.native import native_module
-from surgsplat.render.planar import planar_normals_and_distances, unbiased_plane_depth
+from surgsplat.methods.endoplanar.plane_depth import planar_normals_and_distances, unbiased_plane_depth
 from surgsplat.render.render import MIN_ALPHA_FOR_DEPTH, _SplitChannels, render
 from surgsplat.render.sh import SH_C0, eval_sh, sh_colour
 

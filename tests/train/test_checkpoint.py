@@ -12,7 +12,7 @@ from surgsplat.errors import DataError
 from surgsplat.methods.config import MethodConfig
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GEOMETRY_KEYS, GaussianConfig, GaussianModel
-from surgsplat.model.mesh_anchor import ANCHOR_KEY
+from surgsplat.methods.drawer.mesh_anchor import ANCHOR_KEY
 from surgsplat.train.checkpoint import (load_checkpoint, model_from_state, model_state,
                                         optimizer_state_in_order, save_atomic)
 

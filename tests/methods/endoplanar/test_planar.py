@@ -8,11 +8,11 @@ import torch
 from surgsplat.data.scene import Camera, Frame
 from surgsplat.fields.gaussian_basis import GaussianBasisConfig
 from surgsplat.image.pinhole import pixel_rays
-from surgsplat.methods.registry import endoplanar
+from surgsplat.methods.endoplanar.preset import endoplanar
 from surgsplat.model.component import FrameTime, RenderContext
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.model.planar import PlanarConfig
+from surgsplat.methods.endoplanar.planar import PlanarConfig
 
 W, H = 48, 40
 K = torch.tensor([[40.0, 0, W / 2], [0, 40.0, H / 2], [0, 0, 1]])

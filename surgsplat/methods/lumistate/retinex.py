@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from surgsplat.fields.illumination import bright_channel, brightness
+from surgsplat.methods.lumistate.illumination import bright_channel, brightness
 from surgsplat.losses.photometric import masked_l1
 
 

@@ -13,12 +13,12 @@ from torch import Tensor, nn
 
 from surgsplat.data.scene import load_scene
 from surgsplat.export.mesh import MeshExtractor, MeshOptions
-from surgsplat.fields.sdf import SDFConfig, SDFField
+from surgsplat.methods.endogsg.sdf import SDFConfig, SDFField
 from surgsplat.methods.registry import method_config
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, RenderContext
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
-from surgsplat.model.mesh_anchor import (ANCHOR_KEY, MeshAnchor, MeshAnchorConfig, clip_tilt,
+from surgsplat.methods.drawer.mesh_anchor import (ANCHOR_KEY, MeshAnchor, MeshAnchorConfig, clip_tilt,
                                          clip_in_triangle, face_frames, inradius,
                                          planar_corners, to_face_local, to_world)
 from surgsplat.model.phases import Phase

@@ -30,14 +30,13 @@ from torch import Tensor
 from surgsplat.data.frame_memo import PerFrame
 from surgsplat.data.scene import Frame
 from surgsplat.image.depth import depth_gradient_magnitude
-from surgsplat.image.normal_consistency import normal_consistency
+from surgsplat.methods.endoplanar.normal_consistency import normal_consistency
+from surgsplat.methods.endoplanar.plane_depth import (planar_normals_and_distances,
+                                                     unbiased_plane_depth)
+from surgsplat.model.channels import NORMAL
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, RenderContext
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
-from surgsplat.render.planar import planar_normals_and_distances, unbiased_plane_depth
-
-NORMAL_CHANNEL = "normal"
-"""The render channel of the blended normals [H, W, 3] (camera space, not normalised)."""
 
 
 @dataclass
@@ -64,12 +63,12 @@ class PlanarGaussians(Component):
                         when: FrameTime) -> dict[str, Tensor]:
         normals, distances = planar_normals_and_distances(
             state.means, state.scales, state.quats, camera.world_to_camera)
-        return {NORMAL_CHANNEL: normals, "plane_distance": distances}
+        return {NORMAL: normals, "plane_distance": distances}
 
     def finish_render(self, output, camera, when: FrameTime) -> None:
         distance = output.extras.pop("plane_distance")[..., 0]
         output.extras["expected_depth"] = output.depth
-        output.depth = unbiased_plane_depth(output.extras[NORMAL_CHANNEL], distance, camera.K)
+        output.depth = unbiased_plane_depth(output.extras[NORMAL], distance, camera.K)
 
     def loss_names(self) -> tuple[str, ...]:
         return ("flatten", "normal")
@@ -87,7 +86,7 @@ class PlanarGaussians(Component):
         output = context.output
         counted, edge_weight = self.normal_loss_pixels(context.frame)
         weight = edge_weight if self.config.edge_aware else None
-        total, count = normal_consistency(output.depth, output.extras[NORMAL_CHANNEL],
+        total, count = normal_consistency(output.depth, output.extras[NORMAL],
                                           context.camera.K, counted, weight)
         return total / count.clamp_min(1)
 

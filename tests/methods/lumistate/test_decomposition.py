@@ -10,13 +10,13 @@ from torch import Tensor
 from surgsplat.pipeline.render import write_run_videos
 from surgsplat.data.scene import load_scene, read_image
 from surgsplat.eval.decomposition import DecompositionScores
-from surgsplat.fields.illumination import IlluminationUNet, bright_channel, brightness
-from surgsplat.losses.retinex import (bright_channel_loss, illumination_transfer_loss,
+from surgsplat.methods.lumistate.illumination import IlluminationUNet, bright_channel, brightness
+from surgsplat.methods.lumistate.retinex import (bright_channel_loss, illumination_transfer_loss,
                                       retinex_loss)
 from surgsplat.methods.registry import method_config
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
-from surgsplat.model.lumistate import (LumiState, LumiStateConfig, grid_corners,
+from surgsplat.methods.lumistate.decomposition import (LumiState, LumiStateConfig, grid_corners,
                                        interpolate_corners)
 from surgsplat.model.state import GaussianState
 from surgsplat.model.timeline import interpolate_in_time

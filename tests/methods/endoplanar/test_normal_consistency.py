@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from surgsplat.image.normal_consistency import (normal_consistency,
+from surgsplat.methods.endoplanar.normal_consistency import (normal_consistency,
                                                 normal_consistency_reference)
 from surgsplat.image.pinhole import pixel_rays
 from surgsplat.render.native import native_module

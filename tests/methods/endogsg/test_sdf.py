@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from surgsplat.fields.sdf import (SDFConfig, SDFField, eikonal_loss, orientation_loss,
+from surgsplat.methods.endogsg.sdf import (SDFConfig, SDFField, eikonal_loss, orientation_loss,
                                   projection_loss, sda_loss, tetrahedral_gradient)
 from surgsplat.model.component import SceneInfo, SetupContext
 

@@ -20,7 +20,7 @@ from surgsplat.eval.run_metrics import EvalOptions, evaluate_run
 from surgsplat.export.articulation import articulate
 from surgsplat.methods.overrides import apply_values
 from surgsplat.methods.registry import method_config
-from surgsplat.model.tool_field import SEMANTIC_KEY
+from surgsplat.methods.physiosplat.tool_field import SEMANTIC_KEY
 from surgsplat.train.run import load_trained_run
 from surgsplat.train.trainer import Trainer
 

@@ -15,15 +15,15 @@ from torch import Tensor
 from surgsplat.data.scene import Camera, Frame
 from surgsplat.fields.deformation import Deformation, DeformationField
 from surgsplat.fields.hexplane import HexPlaneConfig
-from surgsplat.losses.biomechanics import BiomechanicsConfig
+from surgsplat.methods.physiosplat.biomechanics import BiomechanicsConfig
 from surgsplat.model.component import FrameTime, RenderContext, SceneInfo, SetupContext
 from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
 from surgsplat.model.physics import arap_strain, collision_energy, neighbour_graph, tool_proxy
 from surgsplat.image.pinhole import depth_normals, pixel_rays
-from surgsplat.model.specular import (SpecularConfig, normal_view_cosine, smooth_depth,
+from surgsplat.methods.physiosplat.specular import (SpecularConfig, normal_view_cosine, smooth_depth,
                                       specular_lobe, view_cosine)
-from surgsplat.model.tool_field import (SEMANTIC_KEY, ToolFieldConfig, _icp,
+from surgsplat.methods.physiosplat.tool_field import (SEMANTIC_KEY, ToolFieldConfig, _icp,
                                         masked_binary_cross_entropy)
 from surgsplat.render.render import RenderOutput, render
 from surgsplat.render.rotation import quaternion_to_matrix

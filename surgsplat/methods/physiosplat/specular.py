@@ -32,9 +32,9 @@ from torch import Tensor
 
 from surgsplat.image.blur import gaussian_blur
 from surgsplat.image.pinhole import pixel_rays
+from surgsplat.model.channels import NORMAL
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, SetupContext
 from surgsplat.model.phases import Phase
-from surgsplat.model.planar import NORMAL_CHANNEL
 from surgsplat.render.render import MIN_ALPHA_FOR_DEPTH
 
 ALBEDO_KEY = "specular_albedo_logit"
@@ -93,9 +93,9 @@ class SpecularLobe(Component):
         albedo = output.extras["specular_albedo"]  # [H, W, 1], carries alpha
         sharpness = output.extras["specular_sharpness"][..., 0] / output.alpha.clamp_min(
             MIN_ALPHA_FOR_DEPTH)
-        if NORMAL_CHANNEL in output.extras:
+        if NORMAL in output.extras:
             with torch.no_grad():
-                cosine, valid = normal_view_cosine(output.extras[NORMAL_CHANNEL], camera.K)
+                cosine, valid = normal_view_cosine(output.extras[NORMAL], camera.K)
             lobe = shade_lobe(cosine, valid, albedo, sharpness)
         else:
             lobe = specular_lobe(output.depth, camera.K, albedo, sharpness)

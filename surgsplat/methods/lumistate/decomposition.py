@@ -39,7 +39,7 @@
   carry the upsampled L_t as `output.extras["illumination"]` [H, W, 1]. A frame whose map Stage 2
   never computed keeps the map 1 (uniform light).
 - Losses "retinex" (Eq. 7), "bright_channel" (Eq. 8) and "illumination_transfer" (G_t against
-  L_t, a deviation, see the lumistate preset), see losses/retinex.py. Stage 2 is these terms'
+  L_t, a deviation, see the lumistate preset), see retinex.py. Stage 2 is these terms'
   `start` (a fraction of the run) in the method config; before it the decoder
   never runs (Stage 1: "illumination is not explicitly predicted; only e_t modulates
   appearance").
@@ -63,8 +63,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from surgsplat.errors import SurgsplatError
-from surgsplat.fields.illumination import LEVELS, IlluminationUNet, brightness
-from surgsplat.losses.retinex import (bright_channel_loss, illumination_transfer_loss,
+from surgsplat.methods.lumistate.illumination import LEVELS, IlluminationUNet, brightness
+from surgsplat.methods.lumistate.retinex import (bright_channel_loss, illumination_transfer_loss,
                                       retinex_loss)
 from surgsplat.model.capabilities import UNIFORM
 from surgsplat.model.channels import (ILLUMINATION, REFLECTANCE, ChannelDescriptor, ChannelKind,
