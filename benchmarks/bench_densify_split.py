@@ -25,7 +25,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_render import write_report  # noqa: E402
-from bench_train import test_psnr  # noqa: E402
+from bench_train import test_psnr_and_visible  # noqa: E402
 
 from surgsplat.data.phantom import PhantomConfig, generate_phantom  # noqa: E402
 from surgsplat.data.scene import load_scene  # noqa: E402
@@ -39,7 +39,7 @@ THRESHOLD_DB = 35.0
 
 def measured_psnr(trainer: Trainer) -> float:
     with torch.no_grad():
-        return round(test_psnr(trainer), 3)
+        return round(test_psnr_and_visible(trainer)[0], 3)
 
 
 def run_mode(scene_dir: Path, mode: str, run_dir: Path, iterations: int,

@@ -113,11 +113,16 @@ def render_test_frame(trainer: Trainer, frame):
                         trainer.background)
 
 
-def test_psnr(trainer: Trainer) -> float:
-    """Mean psnr_tissue over the test frames, rendered now."""
-    values = [psnr_tissue(render_test_frame(trainer, frame).rgb.clamp(0, 1), frame.image,
-                          frame.tissue) for frame in trainer.scene.test_frames]
-    return sum(values) / len(values)
+def test_psnr_and_visible(trainer: Trainer) -> tuple[float, float]:
+    """Mean psnr_tissue over the test frames, rendered now, and the smallest fraction of the
+    Gaussians that one of those renders touches (radius > 0): how many rows an optimiser step
+    over the visible Gaussians only would leave out."""
+    psnrs, visible = [], []
+    for frame in trainer.scene.test_frames:
+        output = render_test_frame(trainer, frame)
+        psnrs.append(psnr_tissue(output.rgb.clamp(0, 1), frame.image, frame.tissue))
+        visible.append(float((output.projection.radii > 0).float().mean()))
+    return sum(psnrs) / len(psnrs), min(visible)
 
 
 def render_fps(trainer: Trainer) -> float:
@@ -140,24 +145,23 @@ def seconds_to(curve: list[list[float]], threshold: float) -> float | None:
     return next((seconds for _, seconds, psnr in curve if psnr >= threshold), None)
 
 
-def curve_point(trainer: Trainer, seconds: float) -> list[float]:
-    """[iteration, training seconds, test psnr_tissue] now, rounded as the JSON keeps them."""
-    with torch.no_grad():
-        return [trainer.iteration, round(seconds, 2), round(test_psnr(trainer), 3)]
-
-
 def train_with_curve(trainer: Trainer, clock_offset: float, curve_every: int
-                     ) -> tuple[list[list[float]], float]:
+                     ) -> tuple[list[list[float]], float, float]:
     """Train to the end (`Trainer.fit`) with a curve point at iteration 0, every `curve_every`
-    iterations and at the last, each at `clock_offset` + the seconds of the steps so far; the
-    curve and the seconds spent measuring it."""
+    iterations and at the last, each [iteration, `clock_offset` + the seconds of the steps so
+    far, test psnr_tissue]; the curve, the seconds spent measuring it, and the smallest visible
+    fraction of the Gaussians in a test render after the first point (`test_psnr_and_visible`)."""
     curve: list[list[float]] = []
+    visible: list[float] = []
     evaluating = 0.0
 
     def measure() -> None:
         nonlocal evaluating
         started = time.perf_counter()
-        curve.append(curve_point(trainer, clock_offset + trainer.elapsed))
+        with torch.no_grad():
+            psnr, fraction = test_psnr_and_visible(trainer)
+        curve.append([trainer.iteration, round(clock_offset + trainer.elapsed, 2), round(psnr, 3)])
+        visible.append(fraction)
         evaluating += time.perf_counter() - started
 
     def on_step(stats: StepStats) -> None:
@@ -167,7 +171,7 @@ def train_with_curve(trainer: Trainer, clock_offset: float, curve_every: int
 
     measure()
     trainer.fit(on_step)
-    return curve, evaluating
+    return curve, evaluating, min(visible[1:], default=visible[0])
 
 
 def scaled_times(row: dict) -> dict[str, float]:
@@ -190,7 +194,8 @@ def run_case(scene_dir: Path, preset: str, run_dir: Path, curve_every: int,
     shutil.rmtree(run_dir, ignore_errors=True)
     trainer = Trainer(config, load_scene(scene_dir), run_dir)
     setup = time.perf_counter() - started
-    curve, evaluating = train_with_curve(trainer, startup_seconds + setup, curve_every)
+    curve, evaluating, visible = train_with_curve(trainer, startup_seconds + setup,
+                                                  curve_every)
     wall = startup_seconds + time.perf_counter() - started - evaluating
     final = curve[-1][2]
     probe_after = probe_evals_per_s()
@@ -202,6 +207,7 @@ def run_case(scene_dir: Path, preset: str, run_dir: Path, curve_every: int,
            "train_seconds": curve[-1][1], "wall_seconds": wall,
            "seconds_per_iter": trainer.elapsed / max(trainer.iteration, 1),
            "num_gaussians": trainer.model.gaussians.num_gaussians,
+           "min_visible_fraction": visible,
            "render_fps": render_fps(trainer), "peak_rss_mb": peak_rss_mb(),
            "width": trainer.scene.frames[0].image.shape[1],
            "height": trainer.scene.frames[0].image.shape[0],

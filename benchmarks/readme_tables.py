@@ -489,6 +489,11 @@ def step_phases_table(row: dict, reference_probe: float) -> list[str]:
               f"| {rasteriser * steps_scaled:.1f} |",
               f"| **everything else** | {1 - rasteriser:.1%} "
               f"| {(1 - rasteriser) * steps_scaled:.1f} |"]
+    if "min_visible_fraction" in row:
+        lines += ["", f"Every test render of the run (after its first) touched at least "
+                      f"{row['min_visible_fraction']:.2%} of the Gaussians: an optimiser step "
+                      f"over the visible Gaussians alone would leave out at most "
+                      f"{1 - row['min_visible_fraction']:.2%} of the rows."]
     return lines
 
 

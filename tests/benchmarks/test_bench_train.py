@@ -19,7 +19,7 @@ def test_a_case_reads_its_times_off_its_curve(small_phantom, tmp_path):
     row = bench_train.run_case(small_phantom, "deform3dgs", tmp_path / "run", curve_every=10,
                                iterations=20, startup_seconds=1.5)
     assert {"preset", "iterations", "test_psnr_tissue", "seconds_per_iter", "num_gaussians",
-            "peak_rss_mb", "render_fps", "setup_seconds", "probe_evals_per_s_before",
+            "peak_rss_mb", "render_fps", "setup_seconds", "min_visible_fraction", "probe_evals_per_s_before",
             "probe_evals_per_s_after", "probe_evals_per_s", "curve", *SCALED,
             *(f"{key}_scaled" for key in SCALED)} <= row.keys()
     curve = row["curve"]
@@ -28,6 +28,7 @@ def test_a_case_reads_its_times_off_its_curve(small_phantom, tmp_path):
     assert seconds[0] >= 1.5 and all(a < b for a, b in zip(seconds, seconds[1:]))
     assert row["test_psnr_tissue"] == curve[-1][2] and row["train_seconds"] == seconds[-1]
     assert row["wall_seconds"] >= row["train_seconds"]
+    assert 0.5 < row["min_visible_fraction"] <= 1.0  # the phantom is in view of every frame
     for key, drop in (("seconds_to_minus_1db", 1.0), ("seconds_to_minus_0p3db", 0.3)):
         first = next(i for i, point in enumerate(curve)
                      if point[2] >= row["test_psnr_tissue"] - drop)
