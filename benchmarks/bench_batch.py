@@ -34,7 +34,7 @@ SURGSPLAT = [sys.executable, "-m", "surgsplat.cli.main"]
 SEQUENTIAL = """
 import sys
 from pathlib import Path
-from surgsplat.cli.batch import clip_jobs, write_summary
+from surgsplat.pipeline.batch import clip_jobs, write_summary
 from surgsplat.pipeline.batch_stages import run_clip_here
 out, iters, threads, *clips = sys.argv[1:]
 jobs = clip_jobs([Path(c) for c in clips], Path(out), "deform3dgs", int(iters), int(threads), 15.0)

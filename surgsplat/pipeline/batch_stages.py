@@ -3,8 +3,8 @@
 Each stage is a plain function of the clip's folders that can run again after a stop: import
 is skipped when the scene is complete, training resumes from the run's checkpoint, evaluation
 and rendering rewrite their files. Train, evaluate and render call `surgsplat.pipeline`
-without progress bars (the batch shows each clip's progress itself). `surgsplat batch` runs them as Ray tasks
-(`surgsplat.cli.batch`); they run as well one after another in one process.
+without progress bars (the batch shows each clip's progress itself). `surgsplat.pipeline.batch`
+runs them as Ray tasks; they run as well one after another in one process.
 
 A batch folder holds one folder per clip, OUT/<clip name>/, with scene/ (the imported scene,
 unless the clip already is a scene folder), run/ (the run folder, with metrics.json and

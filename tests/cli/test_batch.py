@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 import ray
 import typer
-from rich.console import Console
 
-from surgsplat.cli.batch import SUMMARY_FILE, batch_command, clip_jobs, run_batch, write_summary
+from surgsplat.cli.batch import batch_command
+from surgsplat.pipeline.batch import SUMMARY_FILE, clip_jobs, run_batch, write_summary
 from surgsplat.pipeline.batch_stages import DONE, FAILED
 
 
@@ -35,7 +35,7 @@ def test_batch_on_ray_records_failure_and_skips_finished_clips(local_ray, small_
     jobs = clip_jobs(clips, out, "deform3dgs", iterations=4, threads=1, fps=5.0, geometry=False)
 
     statuses = {Path(s["clip"]).name: s for s in
-                run_batch(jobs, None, None, memory_gb=0.5, retries=1, console=Console())}
+                run_batch(jobs, None, None, memory_gb=0.5, retries=1)}
     assert {name: s["state"] for name, s in statuses.items()} == \
         {"liver": DONE, "gallbladder": DONE, "corrupt": FAILED}
     failed = statuses["corrupt"]

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import ray
 
-from surgsplat.cli.batch import REPORT_FILE, SUMMARY_FILE, clip_jobs
+from surgsplat.pipeline.batch import REPORT_FILE, SUMMARY_FILE, clip_jobs
 from surgsplat.pipeline.batch_cluster import GIB, Node, check_nodes_hold
 from surgsplat.pipeline.batch_stages import DONE, STATUS_FILE, record_status
 from surgsplat.errors import SurgsplatError
