@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from types import SimpleNamespace
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -76,8 +77,9 @@ CONTRACT = ("ONNX Runtime on the CPU (pip install 'surgsplat[onnx]'; no weights 
             "size; one output [N, 1, h', w'] or [N, h', w'] at the input's aspect ratio, resized "
             "back to the frame bilinearly.")
 """The shared model contract, for --help (surgsplat.data.onnx_models states it in full)."""
-IMAGENET = ",".join(f"{v:g}" for v in IMAGENET_MEAN), ",".join(f"{v:g}" for v in IMAGENET_STD)
-"""ImageNet's mean and std as the CLI spells them."""
+IMAGENET_TEXT = ",".join(map(repr, IMAGENET_MEAN)), ",".join(map(repr, IMAGENET_STD))
+"""ImageNet's mean and std (ModelInput's defaults) as the CLI spells them: `parse_triple` reads
+them back to the same floats."""
 InputSizeOption = Annotated[str | None, typer.Option(
     help="Input size of the model when its own is not fixed: WIDTHxHEIGHT, or one number, the "
          "short side (keeping the frames' aspect ratio; e.g. 518 for Depth Anything). Default: "
@@ -113,12 +115,14 @@ def import_command(
              "(CholecSeg8k). Without it masks are binary: nonzero = tool.")] = None,
     mask_match: Annotated[str, typer.Option(
         help=f"Pair masks with frames by: {', '.join(MASK_MATCHES)} (auto = the numbers in the "
-             "file names for a folder, sorted order for a video).")] = "auto",
+             "file names for a folder, sorted order for a video).")] = ImportConfig.mask_match,
     allow_missing_masks: Annotated[bool, typer.Option(
-        help="Drop frames that have no mask (default: stop with an error).")] = False,
+        help="Drop frames that have no mask (default: stop with an error).")
+    ] = ImportConfig.allow_missing_masks,
     auto_tool_masks: Annotated[bool, typer.Option(
         help="Find the tools (grey metal, black plastic) in every frame automatically, for "
-             "video without --masks; scene.json records that the masks are automatic.")] = False,
+             "video without --masks; scene.json records that the masks are automatic.")
+    ] = ImportConfig.auto_tool_masks,
     tool_segmenter: Annotated[Path | None, typer.Option(
         help="ONNX tool segmenter (MODEL.onnx) whose per-pixel tool probability gives the tool "
              "masks, inside the field of view; scene.json records the model. " + CONTRACT
@@ -133,11 +137,11 @@ def import_command(
     ] = ToolSegmenterConfig.threshold,
     tool_segmenter_input: InputSizeOption = None,
     tool_segmenter_multiple: MultipleOption = ModelInput.multiple,
-    tool_segmenter_mean: MeanOption = IMAGENET[0],
-    tool_segmenter_std: StdOption = IMAGENET[1],
+    tool_segmenter_mean: MeanOption = IMAGENET_TEXT[0],
+    tool_segmenter_std: StdOption = IMAGENET_TEXT[1],
     fov_mask: Annotated[bool, typer.Option(
         help="Find the circular field of view (black border) and write it to fov_mask.png, "
-             "apart from the tool masks.")] = True,
+             "apart from the tool masks.")] = ImportConfig.fov_mask,
     depth: Annotated[str, typer.Option(
         help="Monocular depth prior: none (the default), shading (relative depth from the light "
              "at the camera, I ~ albedo cos / r^2, by a near-light shape-from-shading fit; weak "
@@ -149,12 +153,14 @@ def import_command(
              "output with its shift taken as 0, unknown where the output is not positive. "
              "Shading and model depth have one unknown scale: every frame's median depth is set "
              "to --shading-median-depth or --depth-model-median-depth; train with "
-             "--set components.depth.form=scale_invariant.")] = "none",
+             "--set components.depth.form=scale_invariant.")] = ImportConfig.depth,
     shading_gamma: Annotated[float, typer.Option(
-        help="Display gamma of the frames for --depth shading (1 = linear).")] = 2.2,
+        help="Display gamma of the frames for --depth shading (1 = linear).")
+    ] = ShadingDepthConfig.gamma,
     shading_median_depth: Annotated[float, typer.Option(
         help="Median depth of every frame for --depth shading, in scene units (the unknown "
-             "absolute scale; 50 is also the distance training assumes without depth).")] = 50.0,
+             "absolute scale; 50 is also the distance training assumes without depth).")
+    ] = ShadingDepthConfig.median_depth,
     depth_model_output: Annotated[str, typer.Option(
         help=f"What the --depth MODEL.onnx output holds: {' or '.join(DEPTH_OUTPUTS)} (both "
              "relative).")] = DepthNetworkConfig.output,
@@ -163,8 +169,8 @@ def import_command(
              "absolute scale).")] = DepthNetworkConfig.median_depth,
     depth_model_input: InputSizeOption = None,
     depth_model_multiple: MultipleOption = ModelInput.multiple,
-    depth_model_mean: MeanOption = IMAGENET[0],
-    depth_model_std: StdOption = IMAGENET[1],
+    depth_model_mean: MeanOption = IMAGENET_TEXT[0],
+    depth_model_std: StdOption = IMAGENET_TEXT[1],
     model_batch: Annotated[int, typer.Option(
         help="Frames per run of an ONNX model whose batch size is not fixed (else the model's "
              "own batch size).")] = ModelInput.batch,
@@ -189,20 +195,24 @@ def import_command(
              "P1 (rectified left camera) or camera_matrix / K / M1 with zero distortion; "
              "image_width / image_height are checked.")] = None,
     hfov: Annotated[float, typer.Option(
-        help="Horizontal field of view (degrees) assumed when --focal is not given.")] = 70.0,
+        help="Horizontal field of view (degrees) assumed when --focal is not given.")
+    ] = ImportConfig.assumed_hfov_deg,
     baseline: Annotated[float | None, typer.Option(
         help="Stereo baseline in --depth-unit (needed with --right unless "
              "--disparity-only).")] = None,
-    depth_unit: Annotated[str, typer.Option(help="Unit of --baseline and of the depth maps.")] = "mm",
+    depth_unit: Annotated[str, typer.Option(help="Unit of --baseline and of the depth maps.")
+                          ] = ImportConfig.depth_unit,
     disparity_only: Annotated[bool, typer.Option(
-        help="With --right: write disparity (px) to disparity/ instead of depth.")] = False,
+        help="With --right: write disparity (px) to disparity/ instead of depth.")
+    ] = ImportConfig.disparity_only,
     num_disparities: Annotated[int, typer.Option(
         help="Stereo search range in pixels (multiple of 16).")] = StereoConfig.num_disparities,
     stereo_mode: Annotated[str, typer.Option(
         help=f"SGBM mode: {', '.join(SGBM_MODES)}.")] = StereoConfig.mode,
-    start: Annotated[int, typer.Option(help="First source frame (0-based).")] = 0,
-    end: Annotated[int | None, typer.Option(help="Stop before this source frame.")] = None,
-    stride: Annotated[int, typer.Option(help="Keep every n-th frame.")] = 1,
+    start: Annotated[int, typer.Option(help="First source frame (0-based).")] = ImportConfig.start,
+    end: Annotated[int | None, typer.Option(help="Stop before this source frame.")
+                   ] = ImportConfig.end,
+    stride: Annotated[int, typer.Option(help="Keep every n-th frame.")] = ImportConfig.stride,
     resize: Annotated[str | None, typer.Option(
         help=f"Output size WIDTHxHEIGHT, same aspect ratio, e.g. 640x360; at least "
              f"{MIN_SIZE}x{MIN_SIZE}, at most {MAX_FRAME_PIXELS:,} pixels.")] = None,
@@ -214,7 +224,7 @@ def import_command(
              "outside of the field of view are excluded; needs " + INSTALL_HINT + "). SfM "
              "scale: from stereo depth with --right, else the sparse points' median depth is "
              "--sfm-median-depth. Frames that fail to register get interpolated poses, listed "
-             "in scene.json and by `surgsplat info`.")] = "static",
+             "in scene.json and by `surgsplat info`.")] = ImportConfig.poses,
     sfm_max_image_size: Annotated[int, typer.Option(
         help="SfM: longer side (pixels) of the frames as SIFT sees them.")
     ] = SfmConfig.max_image_size,
@@ -231,29 +241,7 @@ def import_command(
              "also the distance training assumes without depth).")] = SfmConfig.median_depth,
 ) -> None:
     """Import endoscopic video or frames as an EndoNeRF-layout scene folder."""
-    config = ImportConfig(
-        pattern=pattern, masks=masks, mask_pattern=mask_pattern,
-        tool_labels=parse_labels(tool_labels), mask_match=mask_match,
-        allow_missing_masks=allow_missing_masks, auto_tool_masks=auto_tool_masks,
-        tool_segmenter=tool_segmenter, segmenter=ToolSegmenterConfig(
-            input=model_input(tool_segmenter_input, tool_segmenter_multiple,
-                              tool_segmenter_mean, tool_segmenter_std, model_batch,
-                              "--tool-segmenter"),
-            output=tool_segmenter_output, threshold=tool_segmenter_threshold),
-        fov_mask=fov_mask, depth=depth, shading=ShadingDepthConfig(
-            gamma=shading_gamma, median_depth=shading_median_depth),
-        depth_network=DepthNetworkConfig(
-            input=model_input(depth_model_input, depth_model_multiple, depth_model_mean,
-                              depth_model_std, model_batch, "--depth-model"),
-            output=depth_model_output, median_depth=depth_model_median_depth),
-        right=right,
-        baseline=baseline, disparity_only=disparity_only, depth_unit=depth_unit,
-        stereo=StereoConfig(num_disparities=num_disparities, mode=stereo_mode), focal=focal,
-        fx=fx, fy=fy, cx=cx, cy=cy, calibration=calibration,
-        assumed_hfov_deg=hfov, start=start, end=end, stride=stride, resize=parse_size(resize),
-        scale=scale, poses=poses, sfm=SfmConfig(
-            max_image_size=sfm_max_image_size, max_features=sfm_max_features,
-            overlap=sfm_overlap, refine_focal=sfm_refine_focal, median_depth=sfm_median_depth))
+    config = import_config(locals())
     with progress_bar() as bar:
         tasks: dict[str, int] = {}
 
@@ -265,6 +253,36 @@ def import_command(
         scene_dir = import_scene(source, out, config, progress=report)
     print_import_table(scene_dir)
     print_summary_table(scene_dir)
+
+
+def import_config(options: dict[str, Any]) -> ImportConfig:
+    """The ImportConfig of `surgsplat import`'s options (by parameter name of `import_command`,
+    text as typed): the options' defaults are ImportConfig's own, read from it."""
+    o = SimpleNamespace(**options)
+    return ImportConfig(
+        pattern=o.pattern, masks=o.masks, mask_pattern=o.mask_pattern,
+        tool_labels=parse_labels(o.tool_labels), mask_match=o.mask_match,
+        allow_missing_masks=o.allow_missing_masks, auto_tool_masks=o.auto_tool_masks,
+        tool_segmenter=o.tool_segmenter, segmenter=ToolSegmenterConfig(
+            input=model_input(o.tool_segmenter_input, o.tool_segmenter_multiple,
+                              o.tool_segmenter_mean, o.tool_segmenter_std, o.model_batch,
+                              "--tool-segmenter"),
+            output=o.tool_segmenter_output, threshold=o.tool_segmenter_threshold),
+        fov_mask=o.fov_mask, depth=o.depth,
+        shading=ShadingDepthConfig(gamma=o.shading_gamma, median_depth=o.shading_median_depth),
+        depth_network=DepthNetworkConfig(
+            input=model_input(o.depth_model_input, o.depth_model_multiple, o.depth_model_mean,
+                              o.depth_model_std, o.model_batch, "--depth-model"),
+            output=o.depth_model_output, median_depth=o.depth_model_median_depth),
+        right=o.right, baseline=o.baseline, disparity_only=o.disparity_only,
+        depth_unit=o.depth_unit,
+        stereo=StereoConfig(num_disparities=o.num_disparities, mode=o.stereo_mode),
+        focal=o.focal, fx=o.fx, fy=o.fy, cx=o.cx, cy=o.cy, calibration=o.calibration,
+        assumed_hfov_deg=o.hfov, start=o.start, end=o.end, stride=o.stride,
+        resize=parse_size(o.resize), scale=o.scale, poses=o.poses,
+        sfm=SfmConfig(max_image_size=o.sfm_max_image_size, max_features=o.sfm_max_features,
+                      overlap=o.sfm_overlap, refine_focal=o.sfm_refine_focal,
+                      median_depth=o.sfm_median_depth))
 
 
 def print_import_table(scene_dir: Path) -> None:
