@@ -42,9 +42,9 @@ std::vector<std::string> cpu_isas() {
 
 // Subnormal floats read and written as zero in the calling thread (x86: MXCSR's DAZ and FTZ;
 // AArch64: FPCR's FZ). An operation on a subnormal costs tens to a hundred times a normal one on
-// x86 (a microcode assist); products of tiny gradients land there: EndoPlanar's Gaussian-basis
-// backward, whose flat discs' gradients are near zero, took 67 ms a step against 12 ms with them
-// flushed (full phantom, one thread, Zen 5).
+// x86 (a microcode assist); products of tiny gradients land there: the Gaussian-basis backward
+// of flat (planar) discs, whose gradients are near zero, took 67 ms a step against 12 ms with
+// them flushed (full phantom, one thread, Zen 5).
 void flush_subnormals_in_this_thread() {
 #if defined(__x86_64__) || defined(_M_X64)
     _mm_setcsr(_mm_getcsr() | 0x8040);

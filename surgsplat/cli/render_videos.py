@@ -1,9 +1,9 @@
 """`surgsplat render RUN`: mp4 videos of the reconstruction over all frames.
 
 `--channels` picks the videos (default: rgb, depth, normal, side_by_side; any other channel the
-run's method declares, e.g. lumistate's reflectance and illumination); `--relight uniform|FRAME`
-renders them under another illumination state (methods with one, e.g. lumistate), into files
-named NAME-relit-SOURCE.mp4.
+run's method declares, e.g. a reflectance and an illumination); `--relight uniform|FRAME`
+renders them under another illumination state (methods that model one), into files named
+NAME-relit-SOURCE.mp4.
 """
 
 from __future__ import annotations
@@ -67,16 +67,16 @@ def render_command(
         help="Scene folder (default: the run's; its content must be the run's scene).")] = None,
     channels: Annotated[str, typer.Option(
         help="Comma-separated videos to write: " + ", ".join(DEFAULT_CHANNELS)
-             + ", or any other channel the run's method declares (e.g. lumistate's reflectance "
-               "and illumination).")]
+             + ", or any other channel the run's method declares (e.g. reflectance and "
+               "illumination, for a method that separates them).")]
         = ",".join(DEFAULT_CHANNELS),
     relight: Annotated[str | None, typer.Option(
         help="Render under another illumination state: 'uniform' (the training frames' mean, "
-             "constant over time) or a frame index (that frame's); lumistate runs only. Files "
-             "are named NAME-relit-SOURCE.mp4.")] = None,
+             "constant over time) or a frame index (that frame's); runs of a method with an "
+             "illumination state only. Files are named NAME-relit-SOURCE.mp4.")] = None,
     tool_free: Annotated[bool, typer.Option(
         "--tool-free", help="Render the tissue only, the tool left out (methods with a tool "
-        "field, e.g. physiosplat); default folder RUN/videos_tool_free.")] = False,
+        "field only); default folder RUN/videos_tool_free.")] = False,
 ) -> None:
     """Render RGB, colour-mapped depth, normal maps and input|render|depth side-by-side mp4
     videos (or the --channels chosen)."""
@@ -87,7 +87,8 @@ def render_command(
         run = load_run(run_dir, data)
         if tool_free and not run.model.separates_tool:
             raise SurgsplatError(f"--tool-free: method {run.config.name!r} of {run_dir} has no "
-                                 "tool field to leave out (train e.g. --method physiosplat)")
+                                 "tool field to leave out (train with a method that has one; "
+                                 "`surgsplat methods` lists each method's components)")
         folder = out or run_dir / ("videos_tool_free" if tool_free else "videos")
         source = parse_relight(relight, len(run.scene.frames))
         claim_output_folder(folder, run_dir, "--out",

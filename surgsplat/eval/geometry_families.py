@@ -111,7 +111,7 @@ class GaussianCentresFamily(GroundTruthMeshFamily):
     def conventions(self) -> dict[str, str]:
         return {"gaussians_p2s": "distance of every deformed Gaussian centre that projects "
                                  "inside the frame's field of view to the gt tissue mesh "
-                                 "(Endo-GSG's P2S of the Gaussian point cloud), whatever its "
+                                 "(the P2S of the Gaussian point cloud), whatever its "
                                  "opacity; tissue Gaussians only when a tool field marks some "
                                  "as tool; gaussians_p2s_weighted_mean_mm and _median_mm: the "
                                  "same distances weighted by each Gaussian's rendered opacity "

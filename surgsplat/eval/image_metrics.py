@@ -1,8 +1,8 @@
 """Image-quality metrics with tool pixels excluded, in the two conventions papers use.
 
-- "zeroed" (EndoNeRF / Deform3DGS convention): tool pixels are set to 0 in both images and the
-  metric is taken over ALL pixels of the image, so the zeroed tool pixels count as perfect matches
-  and raise the score as the tool covers more of the frame.
+- "zeroed" (the EndoNeRF-style evaluation convention): tool pixels are set to 0 in both images and
+  the metric is taken over ALL pixels of the image, so the zeroed tool pixels count as perfect
+  matches and raise the score as the tool covers more of the frame.
 - "tissue": the metric is averaged over tissue pixels only.
 
 All functions take `pred` and `gt` as float [H, W, 3] tensors in [0, 1] and `tissue` as a bool

@@ -16,9 +16,9 @@ Weights:
   `SURGSPLAT_ALEXNET_WEIGHTS` environment variable, torch's hub cache (`torch.hub.get_dir()` /
   checkpoints: `$TORCH_HOME/hub/checkpoints/`, by default `~/.cache/torch/hub/checkpoints/`).
 
-Tool pixels (project convention, as in Deform3DGS's evaluation): `lpips_distance` with a tissue
-mask sets tool pixels to 0 (black) in both images before the network, and averages over the
-whole image.
+Tool pixels (project convention, as in the common EndoNeRF-style evaluation code):
+`lpips_distance` with a tissue mask sets tool pixels to 0 (black) in both images before the
+network, and averages over the whole image.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """Surface normals of a render and their angular error against ground truth.
 
 A method that renders a normal channel (planar Gaussians) gives its normal map directly; for any
-other method the normals are those of the surface its rendered depth describes (four-neighbour
-cross products, EndoPlanar Eq. 7). Both are camera-space and oriented away from the camera.
+other method the normals are those of the surface its rendered depth describes (cross products
+of the four neighbouring back-projected points, `image.pinhole.depth_normals`). Both are
+camera-space and oriented away from the camera.
 """
 
 from __future__ import annotations

@@ -53,7 +53,8 @@ def tool_motion(run: TrainedRun) -> ToolMotion:
     """The run's rigid tool motion; SurgsplatError when its method has none."""
     return required(run.model.tool_motion(),
                     f"{run.run_dir}: method {run.config.name!r} has no tool field, so it has no "
-                    "tool to articulate (train e.g. --method physiosplat)")
+                    "tool to articulate (train with a method that has a tool field; "
+                    "`surgsplat methods` lists each method's components)")
 
 
 def tool_pose(motion: ToolMotion, index: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""A simulation-ready scene of one frame (DRAWER's export, for MuJoCo and PyBullet).
+"""A simulation-ready scene of one frame, for MuJoCo and PyBullet.
 
 `write_sim_scene` writes into one folder, everything in metres (the scene's unit times
 `scale`, stated in every file):

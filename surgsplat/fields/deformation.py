@@ -8,8 +8,8 @@ means (3), log-scales (3), quaternion (4) and, when colour deforms, SH DC colour
 
 Mean offsets are produced in units of `position_scale()`, half the diagonal of the canonical point
 cloud's bounding box (`set_bounds`), and scaled to scene units on output. One learning rate thus
-suits scenes in millimetres or metres, as 3DGS and Deform3DGS achieve by multiplying position
-learning rates by the scene extent.
+suits scenes in millimetres or metres, as 3DGS achieves by multiplying position learning rates
+by the scene extent.
 
 As a component (`surgsplat.model.component`), a field sets its bounds from the initial points,
 owns its per-Gaussian attributes and network parameters, moves the Gaussians in `transform`, and
@@ -143,11 +143,11 @@ class DeformationField(Component, ABC):
         return terms
 
     def volume_loss(self, gaussians: GaussianModel, t: float) -> Tensor:
-        """Volume preservation (PhysioSplat Eq. 6): the sum over tissue Gaussians (every
-        Gaussian when no component of the method models a tool) of (det J - 1)^2, as the paper's weight is a
-        weight of a sum, estimated without bias by the mean over `volume_samples()` random
-        ones times their count; J = I + d(mean offset)/dx the deformation's spatial Jacobian at
-        the canonical mean, by central differences of step `volume_step()` (scene units)."""
+        """Volume preservation: the sum (not the mean) over tissue Gaussians (every Gaussian
+        when no component of the method models a tool) of (det J - 1)^2, estimated without bias
+        by the mean over `volume_samples()` random ones times their count; J = I + d(mean
+        offset)/dx the deformation's spatial Jacobian at the canonical mean, by central
+        differences of step `volume_step()` (scene units)."""
         params = gaussians.params
         tissue = tissue_members(self._method, gaussians)
         candidates = (torch.arange(gaussians.num_gaussians) if tissue is None

@@ -1,17 +1,16 @@
-"""Gaussian-basis deformation (Deform3DGS's flexible deformation model, EndoPlanar section 2.1).
+"""Gaussian-basis deformation: every Gaussian moves along its own curve over time.
 
 Every Gaussian carries its own deformation over time, a linear combination of B Gaussian basis
-functions (EndoPlanar eq. 2):
+functions:
 
     psi(t) = sum_j w_j b(t; theta_j, sigma_j),  b(t; theta, sigma) = exp(-(t-theta)^2 / (2 sigma^2))
 
 with a learnable amplitude vector w_j (one entry per deformed channel: mean 3, log-scale 3,
 quaternion 4, and SH DC colour 3 when colour deforms) and a learnable centre theta_j and width
 sigma_j per basis function and Gaussian. The deformation is thus one vector-valued curve per
-Gaussian whose channels share the basis functions, as the paper's equation reads. Deform3DGS's code
-differs in two ways, both left out here: each channel has its own centres and widths, and its basis
-is exp(-((t - theta)^2 / (sigma^2 + 1e-4))^2). Sharing centres and widths across the channels keeps
-the basis [N, B] instead of [N, D, B], which makes the field several times cheaper on a CPU.
+Gaussian whose channels share the basis functions. Giving each channel its own centres and widths
+would make the basis [N, D, B] instead of [N, B]; sharing them makes the field several times
+cheaper on a CPU.
 
 Per-Gaussian attributes (in GaussianModel.params, so densification carries them along):
 basis_weights [N, D, B] (mean channels in units of the bounds' half-diagonal, see
@@ -45,15 +44,12 @@ LOG_WIDTHS = "basis_log_widths"
 class BasisCurvesConfig(ComponentConfig):
     """Basis size, initial width and learning rates of per-Gaussian curves over time: the
     Gaussian-basis field's (which move the Gaussians) and the colour curves'
-    (`model.color_curves`). The measurements below are the field's."""
+    (`model.color_curves`). Their defaults are measured on the field."""
 
     num_basis: int = field(default=8, metadata={"range": "[2, inf)"})
     """Number B of Gaussian basis functions per Gaussian (at least 2). Eight fit the smooth
-    tissue motion of a clip of a few seconds; more let each Gaussian's curve chase noise (on the
-    full phantom, 16 cost about 1 dB of test PSNR at constant rates; with the rates decayed
-    (`lr_decay`), the papers' 17 gave psnr_tissue 43.97 against 44.19 dB, for a depth RMSE of
-    0.018 against 0.022 mm and an opacity-weighted Gaussian P2S median of 0.32 against
-    0.43 mm: deform3dgs, 3000 iterations, seed 1)."""
+    tissue motion of a clip of a few seconds; more let each Gaussian's curve chase noise
+    (measurements: docs/methods/shared-components.md)."""
     long_clip_frames_per_basis: int = field(default=250, metadata={"range": "[1, inf)"})
     """Clips longer than this x num_basis frames get one basis function per this many frames.
     Every basis function costs each Gaussian D + 2 parameters, hence the sparse growth."""
@@ -63,21 +59,19 @@ class BasisCurvesConfig(ComponentConfig):
     init_width: float = field(default=1.0, metadata={"range": "(0, inf)"})
     """Initial width sigma of every basis function, in units of the spacing of the centres."""
     weights_lr: float = field(default=2.5e-4, metadata={"range": "[0, inf)"})
-    """Adam learning rate of the basis amplitudes. Lower than EndoPlanar's 1.6e-3: with a few
-    thousand CPU iterations each Gaussian sees every frame only a few dozen times, and the larger
-    rate left the independent per-Gaussian curves jittering (full phantom, 600 iterations: test
-    PSNR 26.7 dB at 1.6e-3, 31.5 at 5e-4, 32.9 at 2.5e-4, 32.2 at 1.5e-4, 30.4 at 5e-5)."""
+    """Adam learning rate of the basis amplitudes. Low: with a few thousand CPU iterations each
+    Gaussian sees every frame only a few dozen times, and a larger rate (such as 1.6e-3) leaves
+    the independent per-Gaussian curves jittering (measurements:
+    docs/methods/shared-components.md)."""
     centres_lr: float = field(default=1.6e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the basis centres (time units; the clip spans [0, 1])."""
     log_widths_lr: float = field(default=1e-2, metadata={"range": "[0, inf)"})
     """Adam learning rate of the basis log-widths."""
     lr_decay: float = field(default=0.1, metadata={"range": "(0, 1]"})
     """Final over initial learning rate of the amplitudes, centres and widths (exponential
-    decay over the run, as the means decay). They moved the Gaussians at a constant rate while
-    the means' own rate fell 100x, so the curves still jittered with each step's frame at the
-    end of training: full phantom, 3000 iterations, deform3dgs psnr_tissue 39.48 / 38.91 dB
-    (seeds 0 / 1) at a constant rate, 42.65 / 42.83 with this decay, depth RMSE 0.052 ->
-    0.023 mm (issue 28)."""
+    decay over the run, as the means decay). At a constant rate they keep moving the Gaussians
+    while the means' own rate falls 100x, so the curves still jitter with each step's frame at
+    the end of training (measurements: docs/methods/shared-components.md)."""
 
     def resolve(self, scene: SceneInfo) -> "BasisCurvesConfig":
         """This config for the scene's clip: at most one basis function per two frames, so that

@@ -1,4 +1,4 @@
-"""HexPlane deformation field (K-Planes / 4DGS / EndoGaussian / Endo-GSG section 3.2).
+"""HexPlane deformation field (K-Planes / 4DGS).
 
 Six learnable feature planes per scale: three spatial (xy, xz, yz) and three spatio-temporal
 (xt, yt, zt). A Gaussian's canonical mean, normalised to [-1, 1] by the bounds (`set_bounds`,
@@ -44,9 +44,9 @@ class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     """Spatial resolution multipliers, one feature scale each."""
     max_resolution: int = field(default=64, metadata={"range": "[2, 1024]",
                                                        "at_least": "base_resolution"})
-    """Upper limit of any scale's spatial resolution, at least base_resolution. A third scale
-    up to 128 (multires (1, 2, 4)) gained 0.33 dB of psnr_tissue for 1.36x the CPU time
-    (endogaussian, full phantom, 3000 iterations, seed 1: 40.71 against 40.38 dB)."""
+    """Upper limit of any scale's spatial resolution, at least base_resolution. Two scales up
+    to 64 cells: a third, finer scale costs more CPU time than its small gain in fidelity is
+    worth (measurements: docs/methods/shared-components.md)."""
     time_resolution: int = field(default=25, metadata={"range": "[2, inf)"})
     """Cells along time of the spatio-temporal planes for a short clip (at most half the frame
     count)."""
@@ -72,24 +72,21 @@ class HexPlaneConfig(ComponentConfig, kind="hexplane"):
     """Adam learning rate of the MLP."""
     lr_decay: float = field(default=0.1, metadata={"range": "(0, 1]"})
     """Final over initial learning rate of the planes (both kinds) and the MLP (exponential decay
-    over the run, as 4DGS and EndoGaussian decay theirs). At a constant rate every step, fitted
-    to one frame, still moves the shared planes at the end of training, and the field stops
-    wherever the last frames left it: sub-pixel offsets (0.2-1 px on the full phantom) that
-    differed from seed to seed and cost endogsg up to 3 dB of psnr_tissue on some seeds (issue
-    28). EndoGaussian's own configuration decays 100x; here 0.01 left the motion underfitted
-    (endogaussian, full phantom, 3000 iterations, seed 1: psnr_tissue 37.23 dB and depth RMSE
-    0.20 mm, against 39.91 dB and 0.027 mm at 0.1)."""
+    over the run, as 4DGS decays its own). Each step fits one frame, so at a constant rate the
+    last steps still move the shared planes, and the field stops wherever the last frames left
+    it: sub-pixel offsets that differ from seed to seed. A much stronger decay (0.01) stops the
+    field before it has fitted the motion. Measurements: docs/methods/shared-components.md."""
     deform_color: bool = False
     """Also deform the SH DC colour."""
     volume_samples: int = field(default=0, metadata={"range": "[0, inf)"})
-    """Gaussians sampled per step for the volume-preservation loss "volume" (PhysioSplat Eq. 6);
-    0 = the field offers no such loss."""
+    """Gaussians sampled per step for the volume-preservation loss "volume"
+    (`DeformationField.volume_loss`); 0 = the field offers no such loss."""
     volume_step_cells: float = field(default=0.5, metadata={"range": "(0, inf)"})
     """Central-difference step of that loss, in cells of the finest spatial plane."""
 
     def resolve(self, scene: SceneInfo) -> "HexPlaneConfig":
         """This config for the scene's clip: time resolution at most half the frame count (as
-        4DGS / EndoGaussian choose it), so held-out times are interpolated, not memorised;
+        4DGS chooses it), so held-out times are interpolated, not memorised;
         growing with a long clip (`time_capacity`)."""
         return dataclasses.replace(self, time_resolution=time_capacity(
             scene.num_frames, self.time_resolution, self.long_clip_frames_per_cell,

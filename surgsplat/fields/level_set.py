@@ -1,8 +1,8 @@
 """The zero level set of a signed distance field as a triangle mesh (marching cubes).
 
 The one extraction of a surface from a field: the mesh export (`surgsplat.export.mesh`) and the
-mesh-anchored Gaussians (`surgsplat.methods.drawer.mesh_anchor`) both call `marching_cubes`. scikit-image
-and trimesh come with the optional extra `mesh`.
+components that anchor Gaussians on a mesh both call `marching_cubes`. scikit-image and trimesh
+come with the optional extra `mesh`.
 """
 
 from __future__ import annotations

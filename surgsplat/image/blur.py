@@ -1,7 +1,7 @@
 """The Gaussian window of SSIM as a separable blur of image planes, zero padding, 'same' size.
 
 11 taps with sigma 1.5 (Wang et al. 2004), filtered along rows then columns; pixels outside the
-image read as zero, as in the 3DGS / Deform3DGS / EndoNeRF-family evaluation code (conv2d with
+image read as zero, as in the 3DGS / EndoNeRF-family evaluation code (conv2d with
 padding = window // 2). Two implementations with one contract: the native CPU kernel in
 csrc/blur (float32) and a PyTorch depthwise convolution (any dtype, device-agnostic).
 `gaussian_blur` picks the native kernel for float32 CPU planes when it is built. The kernel is

@@ -80,7 +80,7 @@ def inside_image(pixel: Tensor, z: Tensor, width: int, height: int) -> Tensor:
 
 
 def depth_normals(depth: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:
-    """Camera-space normals of the surface a depth map [H, W] describes (EndoPlanar Eq. 7).
+    """Camera-space normals of the surface a depth map [H, W] describes.
 
     Each pixel's four neighbours are back-projected; the normal is the normalised cross product
     (P_right - P_left) x (P_down - P_up), oriented to face away from the camera (n . P > 0 at the

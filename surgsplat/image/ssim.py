@@ -3,7 +3,7 @@
 Constants as in the paper: an 11x11 Gaussian window with sigma 1.5, C1 = (0.01 L)^2 and
 C2 = (0.03 L)^2 with dynamic range L = 1 (images in [0, 1]). Each channel is filtered on its own
 with the separable Gaussian blur of `surgsplat.image.blur`. The SSIM map has the input's size
-('same') with ZERO padding: pixels outside the image read as 0, as in the 3DGS / Deform3DGS /
+('same') with ZERO padding: pixels outside the image read as 0, as in the 3DGS /
 EndoNeRF-family evaluation code (conv2d with padding = window // 2), so that scores compare with
 the papers'. The windows of border pixels thus see zeros in both images, which pulls their local
 means and variances towards 0. The SSIM score is the mean of the map over all pixels and

@@ -5,8 +5,8 @@ means "no measurement". Masks are bool [H, W] with True = count the pixel (tissu
 average over the counted pixels and are 0 when there is none.
 
 `DepthLoss` is the component that applies one of them to the render's depth map (the expected
-depth of the compositing, or the depth a component puts in its place, e.g. EndoPlanar's unbiased
-plane depth).
+depth of the compositing, or the depth a component puts in its place, e.g. the unbiased depth of
+planar Gaussians).
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ def depth_l1(pred_depth: Tensor, gt: Tensor, mask: Tensor, weights: Tensor | Non
              reference: Tensor | None = None) -> Tensor:
     """Mean |pred - gt| over masked pixels with gt > 0, divided by the median measured depth of
     those pixels: unit-free (a relative depth error), so that one weight suits scenes in
-    millimetres or metres; `weights` [H, W] weight each pixel's error (Endo-GSG Eq. 12);
-    `reference`: that median when the caller knows it (`median_measured_depth`)."""
+    millimetres or metres; `weights` [H, W] weight each pixel's error (e.g. an occlusion
+    importance map); `reference`: that median when the caller knows it (`median_measured_depth`)."""
     valid = valid_depth_pixels(pred_depth, gt, mask)
     if not valid.any():
         return (pred_depth * 0.0).sum()
@@ -98,11 +98,11 @@ class DepthLossConfig(ComponentConfig, kind="depth_loss"):
     """How the rendered depth is compared with the measured depth."""
 
     form: Literal["l1", "inverse_l1", "scale_invariant"] = "l1"
-    """L1 on depth, L1 on inverse depth (EndoPlanar Eq. 9), or scale-invariant L1 on log depth
+    """L1 on depth, L1 on inverse depth (disparity), or scale-invariant L1 on log depth
     (for relative depth such as `surgsplat import --depth shading`)."""
     occlusion_gamma: float = field(default=0.0, metadata={"range": "[0, inf)"})
-    """gamma of Endo-GSG's occlusion importance map weighting each pixel (Eq. 11-12); 0 = every
-    tissue pixel weighs 1."""
+    """gamma of the occlusion importance map weighting each pixel (`losses.occlusion`); 0 =
+    every tissue pixel weighs 1."""
 
     def build(self) -> "DepthLoss":
         return DepthLoss(self)

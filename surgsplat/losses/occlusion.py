@@ -1,16 +1,16 @@
-"""Endo-GSG's occlusion importance map (Eq. 11-12): image losses weighted toward the tissue that
-tools hide most often.
+"""The occlusion importance map: image losses weighted toward the tissue that tools hide most
+often.
 
 With M_j the tool mask of training frame j (1 = tool), the occlusion frequency is
 S = sum_j M_j / ||sum_j M_j||_F (Frobenius norm over the image), and the importance map of frame
 i is V_i = (1 - M_i) (1 + gamma S): 0 on the frame's own tool pixels, more where tools pass often.
 Pixels outside the field of view get weight 0 too.
 
-The losses of Eq. 12 average their weighted errors over the tissue pixels, so V_i as written would
-also scale the whole loss by mean(V_i) > 1, by a different factor in every frame (the paper's
-weights lambda_1, lambda_2 were tuned with V_i in the loss, on its data). `weights` therefore
-returns V_i divided by its mean over the frame's tissue pixels: the map only re-weights pixels
-within a frame, so the losses' weights mean the same with and without it, for any gamma.
+The weighted losses average their weighted errors over the tissue pixels, so V_i as written
+would also scale the whole loss by mean(V_i) > 1, by a different factor in every frame, and the
+loss weights would mean something else for every gamma. `weights` therefore returns V_i divided
+by its mean over the frame's tissue pixels: the map only re-weights pixels within a frame, so
+the losses' weights mean the same with and without it, for any gamma.
 
 S is computed once from the training frames, when a run starts, and kept as a buffer: it is
 saved in the checkpoint of the loss that owns the map, so a resumed run weights as before.
@@ -28,7 +28,7 @@ from surgsplat.errors import SurgsplatError
 
 
 def occlusion_frequency(tool_masks: Sequence[Tensor]) -> Tensor:
-    """[H, W] float: the summed bool tool masks [H, W] over their Frobenius norm (Eq. 11);
+    """[H, W] float: the summed bool tool masks [H, W] over their Frobenius norm (S above);
     zeros when no mask has a tool pixel."""
     total = torch.stack([mask.float() for mask in tool_masks]).sum(dim=0)
     norm = total.norm()
@@ -54,7 +54,7 @@ class OcclusionImportance(nn.Module):
             self.frequency = occlusion_frequency([frame.tool for frame in frames])
 
     def weights(self, frame: Frame) -> Tensor:
-        """[H, W] float of `frame`: V_i (Eq. 11), 0 off tissue and 1 + gamma S on tissue, divided
+        """[H, W] float of `frame`: V_i, 0 off tissue and 1 + gamma S on tissue, divided
         by its mean over the tissue pixels (so that mean is 1; all zeros without tissue)."""
         importance = frame.tissue.float()
         if self.gamma > 0:

@@ -2,9 +2,9 @@
 
 Images are float [H, W, C] in [0, 1]; masks are bool [H, W] with True = count the pixel (tissue).
 Pixels outside the mask never influence a loss: L1 averages over the masked pixels, and D-SSIM
-zeroes the unmasked pixels in both images before filtering (as EndoGaussian and Deform3DGS do with
-their tool masks), so the SSIM windows of masked pixels near a tool see the same zeros in both
-images, whatever the tool pixels held.
+zeroes the unmasked pixels in both images before filtering (as published endoscopic
+Gaussian-splat code does with its tool masks), so the SSIM windows of masked pixels near a tool
+see the same zeros in both images, whatever the tool pixels held.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ class _WeightedAbsSum(torch.autograd.Function):
 def masked_l1(pred: Tensor, gt: Tensor, mask: Tensor, weights: Tensor | None = None) -> Tensor:
     """Mean absolute difference over the masked pixels and all channels; 0 if the mask is empty.
     With `weights` [H, W] (e.g. an occlusion importance map, 0 off the mask), each pixel's
-    difference is multiplied by its weight before the mean over the masked pixels (Eq. 12).
+    difference is multiplied by its weight before the mean over the masked pixels.
     Differentiable in `pred`; `gt` and `weights` are data and must not require gradients."""
     _check(pred, gt, mask)
     if gt.requires_grad or (weights is not None and weights.requires_grad):
@@ -86,10 +86,10 @@ class PhotometricConfig(ComponentConfig, kind="photometric_loss"):
     """The photometric loss of a method."""
 
     lambda_dssim: float = field(default=0.2, metadata={"range": "[0, 1]"})
-    """Weight of D-SSIM against L1 (3DGS uses 0.2; 0 = L1 only, as EndoPlanar Eq. 9)."""
+    """Weight of D-SSIM against L1 (3DGS uses 0.2; 0 = L1 only)."""
     occlusion_gamma: float = field(default=0.0, metadata={"range": "[0, inf)"})
-    """gamma of Endo-GSG's occlusion importance map weighting the L1 term (Eq. 11-12); 0 = every
-    tissue pixel weighs 1."""
+    """gamma of the occlusion importance map weighting the L1 term (`losses.occlusion`); 0 =
+    every tissue pixel weighs 1."""
 
     def build(self) -> "PhotometricLoss":
         return PhotometricLoss(self)

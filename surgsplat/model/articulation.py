@@ -1,5 +1,5 @@
-"""A grasper's articulation from per-frame observations of its surface (DRAWER Section C
-adapted to a shaft with two revolute jaws).
+"""A grasper's articulation from per-frame observations of its surface, as a shaft with two
+revolute jaws.
 
 The tool field moves all tool Gaussians with ONE rigid pose per frame, so the jaws' own motion
 is not in the model. It is recovered after training from what each frame observed: the frame's

@@ -1,4 +1,4 @@
-"""Per-frame camera pose refinement, learnt from the render losses (issue 32).
+"""Per-frame camera pose refinement, learnt from the render losses.
 
 Imported poses (structure from motion, a robot's kinematics) are a little off, and the
 photometric loss sees it. Each frame i has a correction xi_i = (omega_i, tau_i) [6], a twist in
@@ -64,13 +64,9 @@ class CameraRefineConfig(ComponentConfig, kind="camera_refine"):
     lr: float = field(default=1e-4, metadata={"range": "[0, inf)"})
     """Adam learning rate of the corrections at iteration 0: radians for the rotation vectors,
     scene extents for the translations. Adam moves each correction by about this much per step
-    while the scene is still a blur, so a high rate lets the poses wander with it: deform3dgs on
-    the moving phantom with SfM's poses (3000 iterations, seed 0, pose prior 0.1, test poses
-    fitted): psnr_tissue 42.18 dB at 1e-4 (decaying to 1e-5), 41.46 at 3e-4, 37.47 at 1e-3;
-    SfM's poses unrefined 41.78, the true poses 39.14 (issue 32; at constant field rates). With
-    the current training (decayed rates, colour curves; 2 seeds, bench_poses) the default rate
-    scores 48.43 dB against 48.27 unrefined and 45.67 with the true poses, depth 0.016 mm
-    against 0.019 and 0.020."""
+    while the scene is still a blur, so a high rate lets the poses wander with it; a low one
+    still corrects poses from structure from motion (measurements:
+    docs/methods/shared-components.md)."""
     lr_final: float = field(default=1e-5, metadata={"range": "(0, inf)"})
     """Learning rate at the end of the run (exponential decay from `lr`)."""
     test_time_steps: int = field(default=100, metadata={"range": "[0, inf)"})

@@ -2,24 +2,21 @@
 
 Every Gaussian carries an offset of its SH DC colour over time, a sum of B Gaussian basis
 functions of time with their own amplitudes, centres and widths: the Gaussian-basis field's
-curves (`fields.gaussian_basis`, EndoPlanar eq. 2), applied to the colour only.
+curves (`fields.gaussian_basis`), applied to the colour only.
 
 Why: a highlight that slides over the tissue, as the surface tilts under a tool with the light at
 the camera, brightens each tissue point for a while and then leaves it. A Gaussian-basis field
 follows it by moving bright Gaussians with it; a field shared by all Gaussians (HexPlane)
 cannot, since its grid is far coarser than a highlight, and its colour output
-(`HexPlaneConfig.deform_color`) did not help (issue 28). A curve per Gaussian can brighten and
-dim each Gaussian where the highlight passes, and leaves the geometry to the field.
+(`HexPlaneConfig.deform_color`) does not help. A curve per Gaussian can brighten and dim each
+Gaussian where the highlight passes, and leaves the geometry to the field.
 
-Every preset has them, as every preset has the exposure curve: neither is in the papers, both
-model what the papers' scenes do to the colour. Measured (full phantom, 3000 iterations, issue
-28), psnr_tissue without and with the curves: endogaussian 40.43 -> 46.95 dB and 40.38 -> 46.26
-(seeds 0 and 1; psnr_specular 33.3 -> 43.1, outside the highlights 45.9 -> 48.1, psnr_occluded
-29.7 -> 28.8), deform3dgs 44.14 -> 45.65 (seed 0), surgsplat 41.26 -> 45.43 (seed 0);
-deform3dgs on the CholecSeg8k clip 26.64 -> 26.80 (seed 0). Achromatic curves (one curve added to
-every channel, as the dichromatic model's highlight) gave endogaussian only 41.44 dB (seed 0):
-the phantom's highlights, like an endoscope's, clip the red channel, so the light they add is
-not grey.
+Every built-in method has them, as it has the exposure curve: they model what an endoscope's
+light does to the colour of the scene, whatever the method does to its geometry. There is one
+curve per colour channel: an endoscope's highlights clip the red channel, so the light they add
+is not grey, and one curve shared by the three channels (`achromatic`) fits them less well. The
+measurements behind these choices are on the documentation page "Components every method
+shares" (docs/methods/shared-components.md).
 
 Per-Gaussian attributes (in `GaussianModel.params`, so densification carries them along):
 color_curve_weights [N, 3, B] (SH DC units; [N, 1, B] when achromatic), color_curve_centres

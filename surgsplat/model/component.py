@@ -327,7 +327,7 @@ class Component(nn.Module):
 
     def canonical_means(self, gaussians: GaussianModel) -> Tensor | None:
         """[N, 3] where this component puts the canonical Gaussians before any deformation
-        (e.g. DRAWER's anchors on mesh faces), differentiable in params["means"], or None when
+        (e.g. Gaussians anchored on mesh faces), differentiable in params["means"], or None when
         it leaves them at params["means"]. The mesh export measures the deformation's
         displacement from there (`SplatModel.canonical_means` asks the components in order)."""
         return None

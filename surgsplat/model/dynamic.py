@@ -46,8 +46,8 @@ class SplatModel(nn.Module):
 
     def canonical_means(self) -> Tensor:
         """[N, 3] where the canonical Gaussians are before any deformation: as the first
-        component that places them puts them (`Component.canonical_means`, e.g. DRAWER's anchors
-        on mesh faces), else params["means"]."""
+        component that places them puts them (`Component.canonical_means`, e.g. anchors on
+        mesh faces), else params["means"]."""
         for component in self.components.values():
             placed = component.canonical_means(self.gaussians)
             if placed is not None:

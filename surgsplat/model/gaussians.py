@@ -33,7 +33,7 @@ class GaussianConfig:
     """Initial scale = this x the mean distance to the 3 nearest neighbours."""
     init_thickness: float = field(default=1.0, metadata={"range": "(0, 1]"})
     """Initial third scale axis (the camera's z: tissue faces the camera) as a fraction of the
-    other two; 1 = isotropic, small = flat discs, as EndoPlanar starts its planar Gaussians."""
+    other two; 1 = isotropic, small = flat discs, as planar Gaussians start."""
     max_gaussians: int = field(default=150_000, metadata={"range": "[8, inf)"})
     """Hard cap on the number of Gaussians (densification stops adding beyond it)."""
     max_per_pixel: float = field(default=0.25, metadata={"range": "[0.05, inf)"})

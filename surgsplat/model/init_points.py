@@ -1,14 +1,14 @@
 """Initial point cloud of the canonical Gaussians, from the scene's depth maps.
 
 Frame 0's tissue pixels are back-projected; what frame 0 cannot give is filled from later
-frames, as in Deform3DGS's motion-aware point fusion (MAPF) and EndoPlanar's Mixture-of-Gaussians
-fusion (MOGF, `endoplanar.txt` 2.2):
+frames, by one of two fusions: motion-aware point fusion ("mapf") or Mixture-of-Gaussians
+background fusion ("mogf"):
 
 - occlusion filling (both): pixels hidden by the tool in frame 0 are taken from the first later
   frame where they are tissue with valid depth;
-- motion: MAPF adds pixels of later frames whose depth moved by more than a threshold from frame
-  0; MOGF instead learns a MOG2 background model over frames 1..N-1, applies it to frame 0, and
-  adds the later-frame pixels of the foreground (moving) region it finds.
+- motion: "mapf" adds pixels of later frames whose depth moved by more than a threshold from
+  frame 0; "mogf" instead learns a MOG2 background model over frames 1..N-1, applies it to
+  frame 0, and adds the later-frame pixels of the foreground (moving) region it finds.
 
 Without depth (monocular video) the points are the scene's structure-from-motion points
 (sparse_points.ply, written by `surgsplat import --poses sfm`) when it has them, else they lie
@@ -42,10 +42,10 @@ class InitConfig:
     max_points: int = field(default=40_000, metadata={"range": "[4, inf)"})
     """Random subsample to at most this many points (seeded)."""
     motion_threshold: float = field(default=0.01, metadata={"range": "[0, inf)"})
-    """MAPF: depth change, as a fraction of the pixel's first depth, that marks it as moving
-    (unit-free: 1 mm at the phantom's 90 mm)."""
+    """Fusion "mapf": depth change, as a fraction of the pixel's first depth, that marks it as
+    moving (unit-free: 1 mm at the phantom's 90 mm)."""
     mog_var_threshold: float = field(default=16.0, metadata={"range": "[0, inf)"})
-    """MOGF: MOG2 variance threshold (OpenCV's varThreshold)."""
+    """Fusion "mogf": MOG2 variance threshold (OpenCV's varThreshold)."""
     monocular_depth: float = field(default=50.0, metadata={"range": "(0, inf)"})
     """Scenes without depth: distance of the initial plane, in scene units."""
     sparse_points: bool = True

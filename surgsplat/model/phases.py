@@ -2,14 +2,14 @@
 order of their phases, so the order in which a method's config lists them does not matter.
 
 The Gaussians of a frame are the canonical Gaussians through every component's `transform`, in
-phase order; the render's derived maps (`finish_render`) follow the same order. The order is that
-of every preset since the methods were measured (issue 28):
+phase order; the render's derived maps (`finish_render`) follow the same order, which is:
 - the anchors place the canonical Gaussians, which the deformation then moves;
 - the colour curves change each Gaussian's colour after the deformation and before the tool
   field gates it;
 - the tool field moves its Gaussians rigidly over whatever the deformation made of them, and
   gates the gradients of every colour and opacity before the exposure and the SDF scale them;
-- LumiState modulates the exposed colour (its offset delta is not scaled by the exposure).
+- the illumination modulates the exposed colour (its colour offset is not scaled by the
+  exposure).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ class Phase(StrEnum):
     its phase as a member or its value (`phase = Phase.TOOL`, or `phase = "tool"`)."""
 
     ANCHOR = "anchor"
-    """Places the canonical Gaussians (DRAWER's anchors on mesh faces)."""
+    """Places the canonical Gaussians (e.g. anchors on mesh faces)."""
     DEFORMATION = "deformation"
     """Moves the Gaussians to the frame's time (Gaussian-basis, HexPlane)."""
     APPEARANCE = "appearance"
@@ -39,7 +39,7 @@ class Phase(StrEnum):
     EXPOSURE = "exposure"
     """The frame's colour gain (the exposure curve)."""
     ILLUMINATION = "illumination"
-    """Modulates each Gaussian's colour by the frame's illumination (LumiState)."""
+    """Modulates each Gaussian's colour by the frame's illumination state."""
     OPACITY = "opacity"
     """Multiplies every opacity by a factor that does not depend on time (the SDF's bell)."""
     SURFACE = "surface"

@@ -1,15 +1,14 @@
-"""Physical quantities of Gaussian sets (PhysioSplat Section 2.3), as plain tensor functions.
+"""Physical quantities of Gaussian sets, as plain tensor functions.
 
-- The tool proxy Psi (Eq. 5): the union of balls around the tool Gaussians' centres, each of
-  its Gaussian's smallest scale (the thickness of the tool's skin of Gaussians; a largest scale
-  reaches 13 mm on the full phantom), Psi(x) = min_k (|x - c_k| - r_k), differentiable in x. The
-  paper takes the tool's convex hull, but a grasper touching tissue spans a hull over the tissue
-  it holds: on the full phantom the true tissue lay within the 2 mm margin of the trained tool's
-  hull over 27,000 pixels a frame (the tool covers 23,000). With the balls, physiosplat ends
-  with 29 tissue Gaussians inside the tool instead of 952, and 0.4 dB more psnr_tissue (full
-  phantom, 3000 iterations, one seed; the hole in its tool-free render stayed: not this).
-- ARAP strain (Eq. 4) over a canonical k-nearest-neighbour graph (scipy's cKDTree), with the
-  stiffness weights w_ij = exp(-|d_ij(0)|^2 / zeta^2), zeta the mean neighbour distance.
+- The tool proxy Psi: a signed distance to the tool, the union of balls around the tool
+  Gaussians' centres, each of its Gaussian's smallest scale (the thickness of the tool's skin
+  of Gaussians, where a Gaussian's largest scale can be far longer),
+  Psi(x) = min_k (|x - c_k| - r_k), differentiable in x. Not the tool's convex hull: a grasper
+  touching tissue spans a hull over the tissue it holds, so a hull would count that tissue as
+  inside the tool (measurements: docs/methods/shared-components.md).
+- ARAP (as-rigid-as-possible) strain over a canonical k-nearest-neighbour graph (scipy's
+  cKDTree), with the stiffness weights w_ij = exp(-|d_ij(0)|^2 / zeta^2), zeta the mean
+  neighbour distance.
 
 Which Gaussians are tool and which tissue is the components' to say (`model.membership`).
 
@@ -25,7 +24,7 @@ from torch import Tensor
 
 PHANTOM_EXTENT_MM = 77.35
 """Scene extent (largest distance of an initial point from their centroid) of the full pulling
-phantom, mm: the length by which the paper's millimetre values (its 2 mm margin) become
+phantom, mm: the length by which lengths given in millimetres (such as a 2 mm margin) become
 fractions of the scene extent (2 mm = 0.0259 of it)."""
 
 
@@ -92,9 +91,9 @@ def neighbour_graph(points: Tensor, members: Tensor, k: int) -> NeighbourGraph:
 
 def arap_strain(means: Tensor, canonical: Tensor, graph: NeighbourGraph,
                 rows: Tensor | None = None) -> Tensor:
-    """Eq. 4 per graph point: sum_j w_ij (|mu_i(t) - mu_j(t)| - |mu_i(0) - mu_j(0)|)^2, for the
-    deformed means [N, 3] and the canonical means [N, 3] (rest lengths, no gradient) of all
-    Gaussians; `rows` [S] picks graph points (default all) -> [S]."""
+    """ARAP strain per graph point: sum_j w_ij (|mu_i(t) - mu_j(t)| - |mu_i(0) - mu_j(0)|)^2,
+    for the deformed means [N, 3] and the canonical means [N, 3] (rest lengths, no gradient) of
+    all Gaussians; `rows` [S] picks graph points (default all) -> [S]."""
     rows = torch.arange(graph.members.shape[0]) if rows is None else rows
     centres, neighbours = graph.members[rows], graph.neighbours[rows]  # [S], [S, k]
     rest = _lengths(canonical.detach(), centres, neighbours)
@@ -109,7 +108,7 @@ def _lengths(points: Tensor, centres: Tensor, neighbours: Tensor) -> Tensor:
 
 
 def collision_energy(sdf: Tensor, margin: float) -> Tensor:
-    """Eq. 5 per point: ReLU(margin - Psi)^2 for signed distances Psi [N] -> [N]."""
+    """Collision penalty per point: ReLU(margin - Psi)^2 for signed distances Psi [N] -> [N]."""
     return torch.relu(margin - sdf).square()
 
 

@@ -8,8 +8,8 @@ from torch import Tensor
 
 def interpolate_in_time(values: Tensor, times: Tensor, t: float) -> Tensor:
     """Values [T, ...] known at increasing times [T] -> the value at t, linear between the two
-    nearest times and held constant beyond the first and last (LumiState's Eq. 5 for the
-    illumination states; the pose corrections of frames between trained ones)."""
+    nearest times and held constant beyond the first and last (e.g. the illumination states
+    of frames between trained ones, or their pose corrections)."""
     if values.shape[0] == 1 or t <= float(times[0]):
         return values[0]
     if t >= float(times[-1]):

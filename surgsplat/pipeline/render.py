@@ -66,7 +66,8 @@ def video_ranges(run: TrainedRun,
 def relighting(run: TrainedRun) -> Relighting:
     """The run's relighting state; SurgsplatError when its method has none."""
     return required(run.model.relighting(), f"--relight: method {run.config.name!r} has no "
-                    "illumination state to change (lumistate has)")
+                    "illumination state to change (train with a method that has one; "
+                    "`surgsplat methods` lists each method's components)")
 
 
 def video_image(name: str, out: RenderOutput, frame: Frame,

@@ -2,7 +2,7 @@
 
 Everything is rendered as channels of one rasterisation: colour (3), camera depth (1) and the
 requested per-Gaussian extras (normals, plane distances, semantic logits, ...; see planar.py for
-the planar normal and distance channels of EndoPlanar).
+the normal and distance channels of planar Gaussians).
 """
 
 from __future__ import annotations
