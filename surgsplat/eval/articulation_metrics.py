@@ -29,6 +29,7 @@ from surgsplat.data.phantom.kinematics import TOOL_KINEMATICS_FILE
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.eval.metric_family import EvalOptions, MetricFamily
 from surgsplat.export.articulation import read_articulation
+from surgsplat.model.capabilities import ToolMotion
 from surgsplat.train.run import TrainedRun
 
 MIN_TOOL_FRACTION = 0.005
@@ -63,7 +64,7 @@ class ArticulationFamily(MetricFamily):
     def pooled(self) -> dict:
         run = self.run
         truth = read_tool_kinematics(run.scene.root)
-        if truth is None or run.model.tool_motion() is None:
+        if truth is None or run.model.find(ToolMotion) is None:
             return {}
         estimate = read_articulation(run.run_dir)
         if estimate is None:

@@ -24,6 +24,7 @@ from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
 from surgsplat.eval.normals import normal_angle_deg, surface_normals
 from surgsplat.export.mesh import FrameMesh, MeshExtractor, coverage
 from surgsplat.image.pinhole import backproject, inside_image, project_points
+from surgsplat.model.capabilities import ToolMotion
 from surgsplat.model.physics import ToolProxy
 from surgsplat.train.run import TrainedRun
 
@@ -128,7 +129,7 @@ class CollisionFamily(GroundTruthMeshFamily):
 
     def score_against_mesh(self, view: FrameView) -> dict[str, float]:
         model = view.run.model
-        motion, tissue = model.tool_motion(), model.tissue_members()
+        motion, tissue = model.find(ToolMotion), model.tissue_members()
         if motion is None or tissue is None:
             return {}
         state = view.state

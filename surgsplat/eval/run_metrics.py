@@ -25,6 +25,7 @@ from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
 from surgsplat.eval.render_families import (DecompositionFamily, DepthFamily, ImageFamily,
                                             OccludedFamily, SpecularFamily)
 from surgsplat.losses.photometric import masked_l1
+from surgsplat.model.capabilities import HeldOutPoses
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
@@ -114,7 +115,7 @@ def frames_scored(metrics: dict) -> str:
 def fit_test_poses(run: TrainedRun, background: Tensor) -> None:
     """Fit the pose correction of every test frame to its tissue pixels (L1 of the render),
     the model frozen, when the method offers it (`HeldOutPoses`, e.g. camera_refine)."""
-    poses = run.model.held_out_poses()
+    poses = run.model.find(HeldOutPoses)
     if poses is None:
         return
     for frame in run.scene.test_frames:

@@ -51,7 +51,7 @@ MIN_OPACITY = 0.05
 
 def tool_motion(run: TrainedRun) -> ToolMotion:
     """The run's rigid tool motion; SurgsplatError when its method has none."""
-    return required(run.model.tool_motion(),
+    return required(run.model.find(ToolMotion),
                     f"{run.run_dir}: method {run.config.name!r} has no tool field, so it has no "
                     "tool to articulate (train with a method that has a tool field; "
                     "`surgsplat methods` lists each method's components)")

@@ -1,17 +1,16 @@
 """Per-frame tissue meshes of a trained run, in the scene's unit and world frame.
 
 Two routes, chosen by the method:
-- a method with a signed distance field (the model's `signed_distance_field`, a capability a
-  component declares, such as a neural SDF that gives the Gaussians their opacity;
-  `model.capabilities`): marching cubes (scikit-image) of the canonical SDF once (with
-  `fit_radius` > 0, each vertex then moved along its normal onto the canonical tissue Gaussians
-  near it, `fit_to_points`; off by default: the mesh is the SDF's own surface), the vertices
-  carried to the frame's time by the Gaussians' own motion (each vertex moves with the
-  inverse-distance-weighted displacement of its nearest Gaussians from their canonical centres,
-  which works for any deformation component and leaves out what is no motion, such as the anchor
-  clip of mesh-anchored Gaussians), then cropped to what the frame's camera sees: faces inside the
-  image and the field of view, on the rendered surface (within `surface_tolerance` of the rendered
-  depth, where the render is opaque);
+- a method with a signed distance field (a component that provides `SignedDistanceField`,
+  `model.capabilities`, such as a neural SDF that gives the Gaussians their opacity): marching
+  cubes (scikit-image) of the canonical SDF once (with `fit_radius` > 0, each vertex then moved
+  along its normal onto the canonical tissue Gaussians near it, `fit_to_points`; off by default:
+  the mesh is the SDF's own surface), the vertices carried to the frame's time by the Gaussians'
+  own motion (each vertex moves with the inverse-distance-weighted displacement of its nearest
+  Gaussians from their canonical centres, which works for any deformation component and leaves
+  out what is no motion, such as the anchor clip of mesh-anchored Gaussians), then cropped to
+  what the frame's camera sees: faces inside the image and the field of view, on the rendered
+  surface (within `surface_tolerance` of the rendered depth, where the render is opaque);
 - any other method: the rendered depth map triangulated (every `stride`-th pixel, two triangles per
   grid square), keeping pixels inside the field of view where the render is opaque, and culling
   triangles with an edge longer than `edge_factor` times the pixel grid's spacing at that depth
@@ -36,6 +35,7 @@ from surgsplat.data.scene import Frame
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.level_set import marching_cubes, mesh_library
 from surgsplat.image.pinhole import backproject_camera, inside_image, project_points
+from surgsplat.model.capabilities import SignedDistanceField
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.render.render import RenderOutput
@@ -92,7 +92,7 @@ class MeshExtractor:
         self.model = model
         self.options = options
         self.background = background
-        self.field = model.signed_distance_field()
+        self.field = model.find(SignedDistanceField)
         self._canonical: tuple[np.ndarray, np.ndarray, float] | None = None
         self._weights: tuple[np.ndarray, np.ndarray] | None = None  # canonical vertices' anchors
 

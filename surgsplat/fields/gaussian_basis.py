@@ -80,16 +80,14 @@ class BasisCurvesConfig(ComponentConfig):
         return dataclasses.replace(self, num_basis=time_capacity(
             scene.num_frames, self.num_basis, self.long_clip_frames_per_basis, self.max_basis))
 
-    def curve_lrs(self, weights: str, centres: str, log_widths: str) -> dict[str, float]:
+    def curve_lrs(self, weights: str, centres: str, log_widths: str
+                  ) -> dict[str, tuple[float, float]]:
         """Adam learning rates of the curves' three attributes, by the names they are kept
-        under in `GaussianModel.params`."""
-        return {weights: self.weights_lr, centres: self.centres_lr,
-                log_widths: self.log_widths_lr}
-
-    def curve_lr_finals(self, weights: str, centres: str, log_widths: str) -> dict[str, float]:
-        """The same rates at the end of the run (`lr_decay` of their start)."""
-        return {name: rate * self.lr_decay
-                for name, rate in self.curve_lrs(weights, centres, log_widths).items()}
+        under in `GaussianModel.params`: (initial, final), the final `lr_decay` of the
+        initial."""
+        return {name: (rate, rate * self.lr_decay)
+                for name, rate in ((weights, self.weights_lr), (centres, self.centres_lr),
+                                   (log_widths, self.log_widths_lr))}
 
 
 @dataclass
@@ -129,11 +127,8 @@ class GaussianBasisField(DeformationField):
         channels = deformation_channels(weights, attributes[CENTRES], attributes[LOG_WIDTHS], t)
         return Deformation.from_channels(channels, self.position_scale())
 
-    def attribute_lrs(self) -> dict[str, float]:
+    def attribute_lrs(self) -> dict[str, tuple[float, float]]:
         return self.config.curve_lrs(WEIGHTS, CENTRES, LOG_WIDTHS)
-
-    def attribute_lr_finals(self) -> dict[str, float]:
-        return self.config.curve_lr_finals(WEIGHTS, CENTRES, LOG_WIDTHS)
 
 
 def identity_curves(num: int, channels: int, num_basis: int,

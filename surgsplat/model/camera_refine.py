@@ -37,6 +37,7 @@ from torch import Tensor, nn
 
 from surgsplat.data.scene import Camera
 from surgsplat.errors import SurgsplatError
+from surgsplat.model.capabilities import CameraCorrection, HeldOutPoses
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
                                        ParamGroup, RenderContext, SceneInfo, SetupContext)
 from surgsplat.model.phases import Phase
@@ -118,6 +119,13 @@ class CameraRefine(Component):
         self.register_buffer("extent", torch.ones(()))  # scene units per translation unit
         self.held_out: dict[int, Tensor] = {}  # [6] fitted corrections of held-out frames
 
+    @property
+    def provides(self) -> tuple[type, ...]:
+        """A corrected camera; and the fitting of held-out frames' poses unless its steps are
+        0."""
+        return ((CameraCorrection, HeldOutPoses) if self.config.test_time_steps > 0
+                else (CameraCorrection,))
+
     def setup(self, context: SetupContext) -> None:
         self.trained[list(context.scene.train_indices)] = True
         self.extent.fill_(context.scene_extent)
@@ -145,9 +153,6 @@ class CameraRefine(Component):
         transform = correction_transform(self.correction(when), float(self.extent))
         pose = transform.to(camera.world_to_camera) @ camera.world_to_camera
         return dataclasses.replace(camera, world_to_camera=pose)
-
-    def held_out_poses(self) -> "CameraRefine | None":
-        return self if self.config.test_time_steps > 0 else None
 
     def fit_held_out(self, index: int, time: float, loss: Callable[[], Tensor]) -> None:
         """Fit held-out frame `index`'s correction (starting from the interpolation) by

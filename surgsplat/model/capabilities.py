@@ -1,10 +1,11 @@
-"""Capabilities that other layers ask a method's components for, as declared interfaces.
+"""Capabilities that some components have and the rest of surgsplat asks for, as protocols.
 
-A component offers one by returning an object with the interface from its contract hook
-(`Component.signed_distance_field`, `Component.relighting`, `Component.tool_motion`,
-`Component.held_out_poses`; usually
-itself), and `SplatModel` asks its components in order, so that no caller looks for a concrete
-class or probes for attributes; a caller that cannot do without one says so with `required`.
+The component contract (`model.component`) holds what every component may contribute; what only
+some components offer is a protocol here, which a component declares it implements by listing
+it in `Component.provides` and implementing its methods itself. The model looks them up
+(`SplatModel.find` for a capability one component at most offers, `SplatModel.providers` for
+those several may), so that no caller looks for a concrete class or probes for attributes; a
+caller that cannot do without one says so with `required`.
 """
 
 from __future__ import annotations
@@ -18,9 +19,12 @@ from torch import Tensor
 from surgsplat.errors import SurgsplatError
 
 if TYPE_CHECKING:
+    from surgsplat.data.scene import Camera
+    from surgsplat.model.component import FrameTime, InitialPoints, RenderContext, SetupContext
     from surgsplat.model.gaussians import GaussianModel
     from surgsplat.model.physics import ToolProxy
     from surgsplat.model.state import GaussianState
+    from surgsplat.render.rasterize import PixelGate
 
 Offered = TypeVar("Offered")
 
@@ -59,8 +63,8 @@ class HeldOutPoses(Protocol):
 
 
 class ToolMotion(Protocol):
-    """The rigid motion of the tool Gaussians (those of `Component.tool_members`), frame by
-    frame: what the tool's articulation is estimated from."""
+    """The rigid motion of the tool Gaussians (those of `ToolMembership`), frame by frame: what
+    the tool's articulation is estimated from."""
 
     def pose(self, index: int) -> tuple[Tensor, Tensor]:
         """Rotation vector [3] and translation [3] (scene units) taking the canonical tool to
@@ -69,6 +73,72 @@ class ToolMotion(Protocol):
     def proxy(self, state: GaussianState, gaussians: GaussianModel) -> ToolProxy | None:
         """The tool's collision proxy in `state` (the Gaussians at one time), which the
         `collisions` diagnostic tests; None when no tool Gaussian is opaque enough."""
+
+
+class ToolMembership(Protocol):
+    """Gaussians modelled as tool; every Gaussian that no component marks is tissue (ask
+    `model.membership` or the model, not one component)."""
+
+    def tool_members(self, gaussians: GaussianModel) -> Tensor:
+        """[N] bool, True = a Gaussian this component models as tool."""
+
+
+class CameraCorrection(Protocol):
+    """A change of the camera a frame is seen with (e.g. a pose refined per frame), which
+    `SplatModel.camera_at` applies, in phase order, to every render of a frame (training
+    steps, evaluation, videos)."""
+
+    def camera(self, camera: Camera, when: FrameTime) -> Camera:
+        """The camera a render at `when` sees through, given `camera`, the one it was asked
+        with. Called in the render's gradient mode, so the returned camera may carry gradients
+        to the component's parameters (the projection differentiates the pose and K). Pure,
+        like `Component.transform`."""
+
+
+class PointSource(Protocol):
+    """Gaussians of its own beyond the scene's initial points (e.g. a tool's, from the tool
+    pixels' depth), which get the same per-Gaussian attributes as the others."""
+
+    def initial_points(self, context: SetupContext) -> InitialPoints | None:
+        """Gaussians to add to the initial points (after every component's `setup`); the
+        components' `initial_attributes` then see them in `context.points`, at the rows
+        `context.rows_added_by(self)`. None adds none."""
+
+
+class GradientGate(Protocol):
+    """Which Gaussians a render keeps from which pixels' gradients (e.g. tissue from the pixels
+    that show the tool in front of it). At most one component of a model gates."""
+
+    def pixel_gate(self, gaussians: GaussianModel, when: FrameTime) -> PixelGate | None:
+        """The gate of a render at `when`, or None to gate nothing in it."""
+
+
+class CanonicalPlacement(Protocol):
+    """Where the canonical Gaussians are before any deformation, when a component places them
+    itself (e.g. anchored on mesh faces). At most one component of a model places them."""
+
+    def canonical_means(self, gaussians: GaussianModel) -> Tensor | None:
+        """[N, 3] the canonical centres, differentiable in params["means"], or None while they
+        are params["means"] (the mesh export measures the deformation's displacement from
+        here)."""
+
+
+class OpacityFactor(Protocol):
+    """A factor that the component's transform puts on every canonical Gaussian's opacity at
+    all times (e.g. an SDF-derived opacity): densification prunes, clones and resets the
+    product sigmoid(opacity_logits) x every factor, the opacity that is rendered."""
+
+    def opacity_factor(self, gaussians: GaussianModel) -> Tensor:
+        """[N] factor in (0, 1]."""
+
+
+class DensifyWeighting(Protocol):
+    """A weight on each Gaussian's screen-space gradient in a step's densification statistics
+    (e.g. to keep occluded tissue growing); the weights of several components multiply."""
+
+    def densify_weights(self, context: RenderContext) -> Tensor | None:
+        """[N] non-negative weights of this step (0 = it never makes the Gaussian grow), or
+        None for 1."""
 
 
 def required(capability: Offered | None, missing: str) -> Offered:

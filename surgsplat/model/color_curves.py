@@ -74,11 +74,8 @@ class ColorCurves(Component):
             context.points.shape[0], channels, self.config.num_basis, self.config.init_width)
         return {WEIGHTS: weights, CENTRES: centres, LOG_WIDTHS: log_widths}
 
-    def attribute_lrs(self) -> dict[str, float]:
+    def attribute_lrs(self) -> dict[str, tuple[float, float]]:
         return self.config.curve_lrs(WEIGHTS, CENTRES, LOG_WIDTHS)
-
-    def attribute_lr_finals(self) -> dict[str, float]:
-        return self.config.curve_lr_finals(WEIGHTS, CENTRES, LOG_WIDTHS)
 
     def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
         """The SH DC colour plus each Gaussian's curve at `when`."""

@@ -7,48 +7,39 @@ same way and never name one. A component declares:
 - its phase (`phase`, see `model.phases`: anchor, deformation, tool, exposure, illumination,
   opacity, surface, shading, loss, camera), from which the model orders the components: the
   order of a method's config does not matter;
-- the camera a frame is seen with (`camera`: e.g. a pose refined per frame), which
-  `SplatModel.camera_at` gives every render of a frame (training steps, evaluation, videos);
 - its network parameters as optimiser groups with a learning-rate schedule (`param_groups`);
-- its per-Gaussian attributes (`initial_attributes`, `attribute_lrs`): they live with the Gaussians
-  in `GaussianModel.params`, so densification, pruning and checkpoints carry them generically;
-- its non-learnable per-Gaussian state (`initial_buffers`, e.g. the face a Gaussian is anchored
-  to): buffers in `GaussianModel.buffer_dict`, which densification copies and prunes with the
-  rows and checkpoints save, in no optimiser group;
+- its per-Gaussian attributes (`initial_attributes`), learnt with the rate `attribute_lrs` gives
+  them (in `GaussianModel.params`) or, when it gives none, kept as state (e.g. the face a
+  Gaussian is anchored to; in `GaussianModel.buffer_dict`, in no optimiser group): either way
+  they live with the Gaussians, so densification, pruning and checkpoints carry them
+  generically;
 - its state for checkpoints: `nn.Module.state_dict()` (parameters and buffers);
 - how it changes the Gaussians at a frame (`transform`: deformation, opacity, colour), a pure
   function of its state and the Gaussians: it changes no parameter, buffer or attribute, so
   asking twice gives the same Gaussians. State changes happen in `setup`, in `before_render`
   (once per render, before any transform: e.g. extracting a first mesh, or encoding a training
   frame once for the step's transform and losses) and in `after_step`;
-- which Gaussians a render keeps from which pixels' gradients (`pixel_gate`);
 - the per-Gaussian channels it adds to a render (`render_channels`) and what it derives from the
   rendered maps (`finish_render`: e.g. an unbiased depth, an exposure gain); the channels to
   show, each with its descriptor (`channel_descriptors`, see `model.channels`), which videos,
   the viewer and the report list;
 - its named loss terms (`loss_names`, `losses`), computed from a `RenderContext`; their weights
   come from the method config (`MethodConfig.losses`), never from the component;
-- Gaussians of its own beyond the scene's initial points (`initial_points`, e.g. a tool's from
-  the tool pixels' depth), which get the same per-Gaussian attributes as the others;
-- which Gaussians it models as tool (`tool_members`; every other Gaussian is tissue, see
-  `model.membership`), and whether it can leave them out of a render (`separates_tool`): a
-  `FrameTime` asks for a tissue-only render with `tissue_only=True`, and such a component then
-  drops its tool Gaussians (eval scores the hidden tissue on that render; `surgsplat render
-  --tool-free`);
-- the capabilities it offers other layers (`model.capabilities`): a signed distance field for
-  meshes (`signed_distance_field`), a relighting state (`relighting`), the tool's rigid motion
-  for its articulation (`tool_motion`);
+- whether it can leave the tool out of a render (`separates_tool`): a `FrameTime` asks for a
+  tissue-only render with `tissue_only=True`, and such a component then drops its tool
+  Gaussians (eval scores the hidden tissue on that render; `surgsplat render --tool-free`);
 - its own metrics of the Gaussians at a test frame for metrics.json, with the convention of each
   (`frame_diagnostics`, e.g. tool collisions or strain);
 - the other components of its method, when it builds on one of them (`bind`, e.g. Gaussians
-  anchored on the mesh of the method's signed distance field), and where it puts the canonical
-  Gaussians when it places them itself (`canonical_means`, e.g. on the faces of that mesh);
+  anchored on the mesh of the method's signed distance field);
 - work between training steps (`after_step`, e.g. re-extracting a mesh every K iterations), after
   the optimiser step and densification, when every Gaussian of the next step exists;
-- what densification must know of it: a factor on every Gaussian's opacity that does not depend
-  on time (`opacity_factor`, e.g. an SDF-derived opacity), so that pruning, cloning and opacity
-  resets act on the opacity that is rendered; and a weight on each Gaussian's screen-space
-  gradient of a step (`densify_weights`, e.g. to keep occluded tissue growing).
+- the capabilities it has that only some components have (`provides`: protocols of
+  `model.capabilities` that the component implements itself): which Gaussians are tool, a
+  corrected camera, Gaussians of its own, a gradient gate, where the canonical Gaussians are,
+  an opacity factor and densification weights that densification must know of, a signed
+  distance field for meshes, a relighting state, the tool's rigid motion, pose fitting of
+  held-out frames. The model and the other layers find them by protocol (`providers`, `find`).
 
 Every hook has a neutral default, so a component implements only what it contributes; only its
 phase has none: every component class declares it.
@@ -58,9 +49,9 @@ config can be rebuilt from the file alone, including components defined outside 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, TypeVar
 
 from torch import Tensor, nn
 
@@ -69,12 +60,9 @@ from surgsplat.model.phases import Phase
 
 if TYPE_CHECKING:
     from surgsplat.data.scene import Camera, Frame
-    from surgsplat.model.capabilities import (HeldOutPoses, Relighting, SignedDistanceField,
-                                              ToolMotion)
     from surgsplat.model.channels import ChannelDescriptor
     from surgsplat.model.gaussians import GaussianModel
     from surgsplat.model.state import GaussianState
-    from surgsplat.render.rasterize import PixelGate
     from surgsplat.render.render import RenderOutput
 
 
@@ -205,6 +193,9 @@ class Component(nn.Module):
     declares it."""
     separates_tool: ClassVar[bool] = False
     """True when `transform` leaves the tool out of renders asked with `when.tissue_only`."""
+    provides: tuple[type, ...] = ()
+    """The capability protocols (`model.capabilities`) this component implements itself; a
+    component whose capabilities depend on its config makes it a property."""
 
     def bind(self, components: Mapping[str, Component]) -> None:
         """Called once with every component of the method (this one included), whenever the
@@ -218,15 +209,6 @@ class Component(nn.Module):
         extract a first mesh, anchor new Gaussians, or compute once what the render's
         transform and the step's losses share). The transforms that follow read that state."""
 
-    def camera(self, camera: Camera, when: FrameTime) -> Camera:
-        """The camera a render at `when` sees through, given `camera`, the one it was asked
-        with (the frame's imported camera, or the viewer's): e.g. the pose with a learnt
-        per-frame correction. Called by `SplatModel.camera_at`, in phase order, in the
-        render's gradient mode, so the returned camera may carry gradients to the component's
-        parameters (the projection differentiates the pose and K). Pure, like `transform`.
-        The default returns `camera` itself."""
-        return camera
-
     def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
         """Called without gradients after every training step (`iteration`, from 1), once the
         optimiser has stepped and densification has run."""
@@ -235,29 +217,17 @@ class Component(nn.Module):
         """Called once on a freshly built component before training (not when a run is loaded:
         whatever it sets must live in parameters or buffers, so the state_dict restores it)."""
 
-    def initial_points(self, context: SetupContext) -> InitialPoints | None:
-        """Gaussians to add to the initial points (after every component's `setup`); the
-        components' `initial_attributes` then see them in `context.points`, at the rows
-        `context.rows_added_by(self)`."""
-        return None
-
     def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
-        """Learnable per-Gaussian tensors, name -> [M, ...] for the M initial points."""
+        """Per-Gaussian tensors, name -> [M, ...] for the M initial points. Those that
+        `attribute_lrs` names are learnt (`GaussianModel.params`); the others are state
+        (`GaussianModel.buffer_dict`) that no optimiser changes. Either way a clone or split
+        child copies its parent's rows, pruning drops them and checkpoints save them."""
         return {}
 
-    def attribute_lrs(self) -> dict[str, float]:
-        """Adam learning rate of each per-Gaussian attribute this component owns, by name."""
-        return {}
-
-    def attribute_lr_finals(self) -> dict[str, float]:
-        """The rate at the end of the run of those of its attributes whose rate decays
-        (exponentially, from its `attribute_lrs` rate), by name; the others keep theirs."""
-        return {}
-
-    def initial_buffers(self, context: SetupContext) -> dict[str, Tensor]:
-        """Non-learnable per-Gaussian tensors, name -> [M, ...] for the M initial points
-        (`GaussianModel.buffer_dict`): a clone or split child copies its parent's rows, pruning
-        drops them, checkpoints save them; no optimiser changes them."""
+    def attribute_lrs(self) -> dict[str, float | tuple[float, float]]:
+        """Adam learning rate of each learnt per-Gaussian attribute this component owns, by
+        name: a constant rate, or (initial, final) for one that decays exponentially over the
+        run."""
         return {}
 
     def param_groups(self) -> list[ParamGroup]:
@@ -269,12 +239,6 @@ class Component(nn.Module):
         """The Gaussians at `when` after this component (deform, change opacity or colour);
         pure: it changes no parameter, buffer or attribute (see `before_render`)."""
         return state
-
-    def pixel_gate(self, gaussians: GaussianModel, when: FrameTime) -> PixelGate | None:
-        """Which Gaussians a render at `when` keeps from which pixels' gradients (e.g. the tool
-        field keeps tissue from the frame's tool pixels), or None. At most one component of a
-        model gates."""
-        return None
 
     def render_channels(self, state: GaussianState, gaussians: GaussianModel, camera: Camera,
                         when: FrameTime) -> dict[str, Tensor]:
@@ -290,27 +254,6 @@ class Component(nn.Module):
         Every render made without gradients must hold them."""
         return ()
 
-    def tool_members(self, gaussians: GaussianModel) -> Tensor | None:
-        """[N] bool, True = a Gaussian this component models as tool, or None when it models
-        no tool. Ask `model.membership` rather than one component."""
-        return None
-
-    def signed_distance_field(self) -> SignedDistanceField | None:
-        """The canonical signed distance field this component offers for meshes, or None."""
-        return None
-
-    def relighting(self) -> Relighting | None:
-        """The illumination state this component lets renders change, or None."""
-        return None
-
-    def tool_motion(self) -> ToolMotion | None:
-        """The rigid per-frame motion of the tool Gaussians this component offers, or None."""
-        return None
-
-    def held_out_poses(self) -> HeldOutPoses | None:
-        """The pose corrections of held-out frames this component fits at test time, or None."""
-        return None
-
     def loss_names(self) -> tuple[str, ...]:
         """Names of the loss terms this component can compute."""
         return ()
@@ -319,25 +262,28 @@ class Component(nn.Module):
         """Unweighted scalar loss terms, for the names in `active` (those with a weight now)."""
         return {}
 
-    def opacity_factor(self, gaussians: GaussianModel) -> Tensor | None:
-        """[N] factor in (0, 1] by which this component's `transform` multiplies every canonical
-        Gaussian's opacity at all times, or None. Densification prunes, clones and resets the
-        product sigmoid(opacity_logits) * factor, the opacity that is rendered."""
-        return None
-
-    def canonical_means(self, gaussians: GaussianModel) -> Tensor | None:
-        """[N, 3] where this component puts the canonical Gaussians before any deformation
-        (e.g. Gaussians anchored on mesh faces), differentiable in params["means"], or None when
-        it leaves them at params["means"]. The mesh export measures the deformation's
-        displacement from there (`SplatModel.canonical_means` asks the components in order)."""
-        return None
-
-    def densify_weights(self, context: RenderContext) -> Tensor | None:
-        """[N] non-negative weight of each Gaussian's screen-space gradient in this step's
-        densification statistics (0 = this step never makes it grow), or None for 1."""
-        return None
-
     def frame_diagnostics(self, state: GaussianState, gaussians: GaussianModel,
                           when: FrameTime) -> Diagnostics | None:
         """Measurements of the Gaussians `state` at the test frame `when`, or None."""
         return None
+
+
+Capability = TypeVar("Capability")
+
+
+def providers(components: Iterable[Component], capability: type[Capability]
+              ) -> list[Capability]:
+    """The components, in order, that declare `capability` in their `provides`."""
+    return [component for component in components if capability in component.provides]
+
+
+def provider(components: Iterable[Component], capability: type[Capability]
+             ) -> Capability | None:
+    """The one component that provides `capability`, or None; SurgsplatError when several do
+    (a capability of which a method can have one)."""
+    found = providers(components, capability)
+    if len(found) > 1:
+        names = ", ".join(type(component).__name__ for component in found)
+        raise SurgsplatError(f"components {names} each provide {capability.__name__}; a method "
+                             "may have one")
+    return found[0] if found else None

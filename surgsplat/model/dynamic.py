@@ -12,11 +12,11 @@ from torch import Tensor, nn
 
 from surgsplat.data.scene import Camera
 from surgsplat.errors import SurgsplatError
-from surgsplat.model.capabilities import (HeldOutPoses, Relighting, SignedDistanceField,
-                                          ToolMotion)
+from surgsplat.model.capabilities import (CameraCorrection, CanonicalPlacement,
+                                          DensifyWeighting, GradientGate, OpacityFactor)
 from surgsplat.model.channels import BASE_CHANNELS, ChannelDescriptor
-from surgsplat.model.component import (Component, Diagnostics, FrameTime, ParamGroup,
-                                       RenderContext)
+from surgsplat.model.component import (Capability, Component, Diagnostics, FrameTime, ParamGroup,
+                                       RenderContext, provider, providers)
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.membership import tissue_members, tool_members
 from surgsplat.model.phases import order_by_phase
@@ -45,14 +45,12 @@ class SplatModel(nn.Module):
                              sh=self.gaussians.sh_coeffs(), sh_degree=self.gaussians.sh_degree)
 
     def canonical_means(self) -> Tensor:
-        """[N, 3] where the canonical Gaussians are before any deformation: as the first
-        component that places them puts them (`Component.canonical_means`, e.g. anchors on
-        mesh faces), else params["means"]."""
-        for component in self.components.values():
-            placed = component.canonical_means(self.gaussians)
-            if placed is not None:
-                return placed
-        return self.gaussians.params["means"]
+        """[N, 3] where the canonical Gaussians are before any deformation: as the component
+        that places them puts them (`CanonicalPlacement`, e.g. anchors on mesh faces), else
+        params["means"]."""
+        placement = self.find(CanonicalPlacement)
+        placed = None if placement is None else placement.canonical_means(self.gaussians)
+        return self.gaussians.params["means"] if placed is None else placed
 
     def before_render(self, when: FrameTime) -> None:
         """Every component's `before_render` for a render at `when` (`render` calls it)."""
@@ -69,16 +67,16 @@ class SplatModel(nn.Module):
 
     def camera_at(self, camera: Camera, when: FrameTime) -> Camera:
         """The camera a frame at `when` is seen with: `camera` through every component's
-        `camera` hook, in phase order (the camera itself when no component changes it)."""
-        for component in self.components.values():
-            camera = component.camera(camera, when)
+        `CameraCorrection`, in phase order (the camera itself when no component changes it)."""
+        for correction in self.providers(CameraCorrection):
+            camera = correction.camera(camera, when)
         return camera
 
     def render(self, camera: Camera, when: FrameTime, background: Tensor | None = None,
                absgrad: Tensor | None = None) -> tuple[RenderOutput, GaussianState]:
         """The view of `camera` at `when`, with every component's channels and derived maps,
         and the Gaussians that were rendered (after every component's `before_render`; their
-        gradients filtered by the one component's `pixel_gate`, if any). `camera` is
+        gradients filtered by the one component's `GradientGate`, if any). `camera` is
         rendered as given: a frame's camera goes through `camera_at` first (`render_frame` and
         the Trainer do so)."""
         self.before_render(when)
@@ -90,16 +88,13 @@ class SplatModel(nn.Module):
                     raise SurgsplatError(f"component {name!r} renders channel {key!r}, which "
                                          "another component already renders")
                 channels[key] = value
-        gates = {name: gate for name, component in self.components.items()
-                 if (gate := component.pixel_gate(self.gaussians, when)) is not None}
-        if len(gates) > 1:
-            raise SurgsplatError(f"components {', '.join(gates)} each gate the render's "
-                                 "gradients; at most one may")
+        gating = self.find(GradientGate)
+        gate = None if gating is None else gating.pixel_gate(self.gaussians, when)
         output = render(state.means, state.scales, state.quats, state.opacities, state.sh,
                         camera.K, camera.width, camera.height,
                         world_to_camera=camera.world_to_camera, sh_degree=state.sh_degree,
                         extras=channels, background=background, absgrad=absgrad,
-                        gate=next(iter(gates.values()), None))
+                        gate=gate)
         for component in self.components.values():
             component.finish_render(output, camera, when)
         return output, state
@@ -130,21 +125,14 @@ class SplatModel(nn.Module):
         """[N] bool, True = tissue Gaussian; None when every Gaussian is tissue."""
         return tissue_members(self.components.values(), self.gaussians)
 
-    def signed_distance_field(self) -> SignedDistanceField | None:
-        """The first component's signed distance field, or None."""
-        return _first(c.signed_distance_field() for c in self.components.values())
+    def find(self, capability: type[Capability]) -> Capability | None:
+        """The component that provides `capability` (`model.capabilities`), or None;
+        SurgsplatError when several do."""
+        return provider(self.components.values(), capability)
 
-    def relighting(self) -> Relighting | None:
-        """The first component's relighting state, or None."""
-        return _first(c.relighting() for c in self.components.values())
-
-    def tool_motion(self) -> ToolMotion | None:
-        """The first component's rigid tool motion, or None."""
-        return _first(c.tool_motion() for c in self.components.values())
-
-    def held_out_poses(self) -> HeldOutPoses | None:
-        """The first component's test-time pose fitting, or None."""
-        return _first(c.held_out_poses() for c in self.components.values())
+    def providers(self, capability: type[Capability]) -> list[Capability]:
+        """Every component that provides `capability`, in phase order."""
+        return providers(self.components.values(), capability)
 
     @torch.no_grad()
     def diagnostics(self, when: FrameTime) -> Diagnostics:
@@ -184,13 +172,13 @@ class SplatModel(nn.Module):
     def opacity_factor(self) -> Tensor | None:
         """[N] product of the components' time-independent opacity factors, or None."""
         return _product(component.opacity_factor(self.gaussians)
-                        for component in self.components.values())
+                        for component in self.providers(OpacityFactor))
 
     @torch.no_grad()
     def densify_weights(self, context: RenderContext) -> Tensor | None:
         """[N] product of the components' densification weights for this step, or None."""
         return _product(component.densify_weights(context)
-                        for component in self.components.values())
+                        for component in self.providers(DensifyWeighting))
 
     @torch.no_grad()
     def after_step(self, iteration: int) -> None:
@@ -198,29 +186,18 @@ class SplatModel(nn.Module):
         for component in self.components.values():
             component.after_step(self.gaussians, iteration)
 
-    def attribute_lrs(self) -> dict[str, float]:
-        """Learning rates of the components' per-Gaussian attributes, by attribute name."""
-        lrs: dict[str, float] = {}
+    def attribute_lrs(self) -> dict[str, float | tuple[float, float]]:
+        """Learning rates of the components' learnt per-Gaussian attributes, by attribute name
+        (`Component.attribute_lrs`)."""
+        lrs: dict[str, float | tuple[float, float]] = {}
         for component in self.components.values():
             lrs.update(component.attribute_lrs())
         return lrs
-
-    def attribute_lr_finals(self) -> dict[str, float]:
-        """Final learning rates of the components' decaying per-Gaussian attributes, by name."""
-        finals: dict[str, float] = {}
-        for component in self.components.values():
-            finals.update(component.attribute_lr_finals())
-        return finals
 
     def component_param_groups(self) -> list[ParamGroup]:
         """Optimiser groups of every component's own parameters."""
         return [group for component in self.components.values()
                 for group in component.param_groups()]
-
-
-def _first(offers):
-    """The first of `offers` that is not None, or None."""
-    return next((offer for offer in offers if offer is not None), None)
 
 
 def _product(factors) -> Tensor | None:

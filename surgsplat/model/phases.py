@@ -49,7 +49,7 @@ class Phase(StrEnum):
     LOSS = "loss"
     """Leaves the Gaussians and the render as they are: loss terms, metrics, capabilities."""
     CAMERA = "camera"
-    """Changes the camera a frame is seen with (`Component.camera`, per-frame pose refinement),
+    """Changes the camera a frame is seen with (`CameraCorrection`, per-frame pose refinement),
     not the Gaussians: its place among the phases changes no render."""
 
 

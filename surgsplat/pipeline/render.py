@@ -65,7 +65,7 @@ def video_ranges(run: TrainedRun,
 
 def relighting(run: TrainedRun) -> Relighting:
     """The run's relighting state; SurgsplatError when its method has none."""
-    return required(run.model.relighting(), f"--relight: method {run.config.name!r} has no "
+    return required(run.model.find(Relighting), f"--relight: method {run.config.name!r} has no "
                     "illumination state to change (train with a method that has one; "
                     "`surgsplat methods` lists each method's components)")
 

@@ -14,6 +14,7 @@ from surgsplat.errors import SurgsplatError
 from surgsplat.export.articulation import ARTICULATION_FILE
 from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import apply_values
+from surgsplat.model.capabilities import ToolMotion
 from surgsplat.pipeline.articulate import articulate_run, articulation_summary
 from surgsplat.pipeline.run_folders import check_output_folder
 from surgsplat.train.checkpoint import has_checkpoint, previous_path
@@ -87,7 +88,7 @@ def fit(trainer: Trainer, on_step: Callable[[StepStats], None] | None = None) ->
 def after_training(trainer: Trainer, data: Path | None, note: Note = quiet) -> None:
     """Estimate and write the tool's articulation of a method with a tool field (noted in one
     line, or why it could not be estimated)."""
-    if trainer.model.tool_motion() is None:
+    if trainer.model.find(ToolMotion) is None:
         return
     try:
         articulation = articulate_run(load_trained_run(trainer.run_dir, data))

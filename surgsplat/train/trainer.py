@@ -34,8 +34,9 @@ from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig, to_dict
 from surgsplat.methods.ranges import check_config
 from surgsplat.methods.settings import LossWeight
+from surgsplat.model.capabilities import PointSource
 from surgsplat.model.component import (Component, FrameTime, ParamGroup, RenderContext,
-                                       SceneInfo, SetupContext)
+                                       SceneInfo, SetupContext, providers)
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GEOMETRY_KEYS, GaussianModel
 from surgsplat.model.init_points import initial_points
@@ -114,10 +115,11 @@ def check_loss_weights(weights: dict[str, LossWeight], declared: dict[str, str])
 
 def add_component_points(context: SetupContext, colors: Tensor,
                          components) -> tuple[Tensor, Tensor]:
-    """Append every component's `initial_points` to `context.points` (recording each one's rows
-    in `context.added`); returns the means [M', 3] and colours [M', 3] of all initial points."""
+    """Append the initial points of every component that is a `PointSource` to
+    `context.points` (recording each one's rows in `context.added`); returns the means [M', 3]
+    and colours [M', 3] of all initial points."""
     means = context.points
-    for component in components:
+    for component in providers(components, PointSource):
         extra = component.initial_points(context)
         if extra is None or extra.means.shape[0] == 0:
             continue
@@ -131,20 +133,20 @@ def add_component_points(context: SetupContext, colors: Tensor,
 
 def declared_per_gaussian(context: SetupContext, components: dict[str, Component]
                           ) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
-    """Every component's initial per-Gaussian attributes and buffers, name -> [M, ...] each;
-    SurgsplatError when two components (or the Gaussians themselves) own a name."""
+    """Every component's initial per-Gaussian attributes, name -> [M, ...] each, split into the
+    learnt ones (those its `attribute_lrs` names) and the others (buffers); SurgsplatError when
+    two components (or the Gaussians themselves) own a name."""
     owners = {key: "the Gaussians" for key in GEOMETRY_KEYS}
     attributes: dict[str, Tensor] = {}
     buffers: dict[str, Tensor] = {}
     for name, component in components.items():
-        for kind, found, declared in (("attribute", attributes, component.initial_attributes),
-                                      ("buffer", buffers, component.initial_buffers)):
-            for key, value in declared(context).items():
-                if key in owners:
-                    raise SurgsplatError(f"component {name!r} declares the per-Gaussian {kind} "
-                                         f"{key!r}, already owned by {owners[key]}")
-                owners[key] = f"component {name!r}"
-                found[key] = value
+        learnt = component.attribute_lrs()
+        for key, value in component.initial_attributes(context).items():
+            if key in owners:
+                raise SurgsplatError(f"component {name!r} declares the per-Gaussian attribute "
+                                     f"{key!r}, already owned by {owners[key]}")
+            owners[key] = f"component {name!r}"
+            (attributes if key in learnt else buffers)[key] = value
     return attributes, buffers
 
 
@@ -229,8 +231,7 @@ class Trainer:
                  "log_scales": (lr.log_scales, None), "quats": (lr.quats, None),
                  "opacity_logits": (lr.opacity_logits, None), "sh_dc": (lr.sh_dc, None),
                  "sh_rest": (lr.sh_rest, None)}
-        finals = self.model.attribute_lr_finals()
-        rates.update({name: (rate, finals.get(name))
+        rates.update({name: rate if isinstance(rate, tuple) else (rate, None)
                       for name, rate in self.model.attribute_lrs().items()})
         groups = []
         for name, param in self.model.gaussians.params.items():

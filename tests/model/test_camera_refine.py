@@ -13,6 +13,7 @@ from surgsplat.data.scene import Camera, load_scene
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.registry import method_config
 from surgsplat.model.camera_refine import PRIOR, CameraRefineConfig, correction_transform
+from surgsplat.model.capabilities import HeldOutPoses
 from surgsplat.model.component import FrameTime, RenderContext, SceneInfo, SetupContext
 from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.model.gaussians import GaussianModel
@@ -234,7 +235,7 @@ def test_a_held_out_frame_is_fitted_at_test_time_and_says_so():
         rgb = model.render(model.camera_at(imported, held_out), held_out)[0].rgb
         return (rgb - target).square().mean()
 
-    assert model.held_out_poses() is component
+    assert model.find(HeldOutPoses) is component
     component.fit_held_out(1, 0.25, loss)
     after = pose_error(model.camera_at(imported, held_out).world_to_camera.detach(),
                        torch.eye(4))
@@ -246,4 +247,4 @@ def test_a_held_out_frame_is_fitted_at_test_time_and_says_so():
     with pytest.raises(SurgsplatError, match="frame 2 is a training frame"):
         component.fit_held_out(2, 0.5, loss)
     component.config.test_time_steps = 0
-    assert model.held_out_poses() is None
+    assert model.find(HeldOutPoses) is None

@@ -62,9 +62,10 @@ def test_achromatic_curves_add_one_offset_to_every_channel():
 
 def test_the_curves_rates_decay_to_lr_decay_of_their_start():
     curves = ColorCurvesConfig(weights_lr=0.01, lr_decay=0.2).build()
-    finals = curves.attribute_lr_finals()
-    for name, rate in curves.attribute_lrs().items():
-        assert abs(finals[name] - 0.2 * rate) < 1e-15
+    rates = curves.attribute_lrs()
+    assert rates["color_curve_weights"][0] == 0.01
+    for initial, final in rates.values():
+        assert abs(final - 0.2 * initial) < 1e-15
 
 
 def test_a_hexplane_method_with_colour_curves_trains_them_with_its_gaussians(small_phantom,

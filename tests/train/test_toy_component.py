@@ -22,6 +22,7 @@ from surgsplat.export.report import frame_strip, strip_channels, write_report
 from surgsplat.export.viewer import view_image, viewer_channels
 from surgsplat.methods.registry import method_config
 from surgsplat.methods.settings import LossWeight
+from surgsplat.model.capabilities import DensifyWeighting, OpacityFactor, ToolMembership
 from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
                                        RenderContext, SetupContext)
@@ -61,13 +62,12 @@ class ToyComponent(Component):
         self.config = config
 
     def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
-        return {ATTRIBUTE: torch.full((context.points.shape[0],), self.config.init_logit)}
+        rows = context.points.shape[0]
+        return {ATTRIBUTE: torch.full((rows,), self.config.init_logit),
+                BUFFER: torch.arange(rows)}
 
     def attribute_lrs(self) -> dict[str, float]:
-        return {ATTRIBUTE: self.config.lr}
-
-    def initial_buffers(self, context: SetupContext) -> dict[str, Tensor]:
-        return {BUFFER: torch.arange(context.points.shape[0])}
+        return {ATTRIBUTE: self.config.lr}  # the buffer has none: it is state, not learnt
 
     def render_channels(self, state, gaussians, camera, when) -> dict[str, Tensor]:
         return {"toy": torch.sigmoid(gaussians.params[ATTRIBUTE])}
@@ -155,6 +155,7 @@ class FrozenGrowthConfig(ComponentConfig, kind="toy_frozen_growth"):
 
 class FrozenGrowthComponent(Component):
     phase = Phase.OPACITY
+    provides = (OpacityFactor, DensifyWeighting)
 
     def transform(self, state, gaussians, when):
         return state.replace(opacities=state.opacities * 0.5)
@@ -244,6 +245,7 @@ class ToolMarkConfig(ComponentConfig, kind="toy_tool_mark"):
 
 class ToolMarkComponent(Component):
     phase = Phase.LOSS
+    provides = (ToolMembership,)
 
     def tool_members(self, gaussians) -> Tensor:
         return gaussians.params["means"].detach()[:, 0] > 0

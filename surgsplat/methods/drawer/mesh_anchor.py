@@ -1,8 +1,8 @@
 """Gaussians anchored on the faces of the mesh of the method's signed distance field (DRAWER,
 `drawer-supplement.txt` Section B.2).
 
-The mesh is the zero level set of the method's signed distance field (the first component's
-`signed_distance_field`, `model.capabilities`; `fields.level_set.marching_cubes`),
+The mesh is the zero level set of the method's signed distance field (the component that
+provides `SignedDistanceField`, `model.capabilities`; `fields.level_set.marching_cubes`),
 extracted before the first render (`before_render`) and again after every `reanchor_every`
 training steps (`after_step`). Each Gaussian is mapped to a face k (per-Gaussian buffer
 `anchor_face`, carried by densification with the rows: a clone or split child keeps its parent's
@@ -73,8 +73,9 @@ from torch import Tensor
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.level_set import marching_cubes
-from surgsplat.model.capabilities import SignedDistanceField
-from surgsplat.model.component import Component, ComponentConfig, FrameTime, SetupContext
+from surgsplat.model.capabilities import CanonicalPlacement, SignedDistanceField
+from surgsplat.model.component import (Component, ComponentConfig, FrameTime, SetupContext,
+                                       providers)
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.model.membership import tissue_members
 from surgsplat.model.phases import Phase
@@ -233,6 +234,7 @@ class MeshAnchor(Component):
     """See the module docstring. Buffers: vertices [V, 3] and faces [F, 3] of the canonical mesh
     the Gaussians are anchored to, cell (the marching-cubes cell, scene units)."""
     phase = Phase.ANCHOR
+    provides = (CanonicalPlacement,)
 
     def __init__(self, config: MeshAnchorConfig):
         super().__init__()
@@ -249,8 +251,7 @@ class MeshAnchor(Component):
         self._geometry = FaceGeometry.of(torch.zeros(0, 3, 3))  # of the current mesh's faces
 
     def bind(self, components: Mapping[str, Component]) -> None:
-        fields = [c.signed_distance_field() for c in components.values()]
-        self._surface = tuple(field for field in fields if field is not None)[:1]
+        self._surface = tuple(providers(components.values(), SignedDistanceField))[:1]
         if not self._surface:
             raise SurgsplatError("mesh_anchor needs a component with a signed distance field "
                                  "(e.g. 'sdf') in the same method")
@@ -334,7 +335,8 @@ class MeshAnchor(Component):
         return straight_through(clipped, means)
 
     # ---- the component contract ----
-    def initial_buffers(self, context: SetupContext) -> dict[str, Tensor]:
+    def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
+        """The face each Gaussian is anchored to (state: no rate), -1 until anchored."""
         return {ANCHOR_KEY: torch.full((context.points.shape[0],), -1, dtype=torch.long)}
 
     def before_render(self, gaussians: GaussianModel, when: FrameTime) -> None:

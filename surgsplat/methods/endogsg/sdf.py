@@ -35,8 +35,10 @@ would then never pull a drifting mean back, nor would the field learn where the 
 full phantom that lost the mesh over half the scene and 21 dB, issue 28).
 
 Sign convention: f > 0 in front of the surface (the camera side, free space), f < 0 behind it.
-The field is the method's `signed_distance_field` (`model.capabilities`), from which mesh anchors
-and the mesh export extract the surface. `setup` fits the field to the initial point cloud along the first camera's rays before training.
+The field provides the method's `SignedDistanceField` (`model.capabilities`), from which mesh
+anchors and the mesh export extract the surface, and the `OpacityFactor` that densification
+acts on. `setup` fits the field to the initial point cloud along the first camera's rays before
+training.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from torch import Tensor, nn
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.image.pinhole import inside_image, project_points
+from surgsplat.model.capabilities import OpacityFactor, SignedDistanceField
 from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
                                        RenderContext, SetupContext)
 from surgsplat.model.gaussians import GaussianModel
@@ -112,6 +115,7 @@ class SDFConfig(ComponentConfig, kind="sdf"):
 class SDFField(Component):
     """grids[l]: [1, C, R_l, R_l, R_l]; box: [2, 3] (lo, hi) canonical bounds, scene units."""
     phase = Phase.OPACITY
+    provides = (SignedDistanceField, OpacityFactor)
 
     def __init__(self, config: SDFConfig):
         super().__init__()
@@ -172,9 +176,6 @@ class SDFField(Component):
     # ---- the component contract ----
     def bind(self, components: Mapping[str, Component]) -> None:
         self._method = tuple(components.values())
-
-    def signed_distance_field(self) -> "SDFField":
-        return self
 
     def setup(self, context: SetupContext) -> None:
         points = context.points

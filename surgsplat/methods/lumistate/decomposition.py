@@ -43,7 +43,7 @@
   `start` (a fraction of the run) in the method config; before it the decoder
   never runs (Stage 1: "illumination is not explicitly predicted; only e_t modulates
   appearance").
-- Relighting (the component's `relighting` capability, `model.capabilities`): `relit("uniform")`
+- Relighting (the component provides `Relighting`, `model.capabilities`): `relit("uniform")`
   renders every time under the mean of the training frames' embeddings and maps (one constant
   illumination state); `relit(frame)` under frame `frame`'s.
 - Shown channels (`channel_descriptors`): the reflectance (colour) and the illumination (grey
@@ -66,7 +66,7 @@ from surgsplat.errors import SurgsplatError
 from surgsplat.methods.lumistate.illumination import LEVELS, IlluminationUNet, brightness
 from surgsplat.methods.lumistate.retinex import (bright_channel_loss, illumination_transfer_loss,
                                       retinex_loss)
-from surgsplat.model.capabilities import UNIFORM
+from surgsplat.model.capabilities import UNIFORM, Relighting
 from surgsplat.model.channels import (ILLUMINATION, REFLECTANCE, ChannelDescriptor, ChannelKind,
                                       Colormap)
 from surgsplat.model.component import (Component, ComponentConfig, FrameTime, ParamGroup,
@@ -234,6 +234,7 @@ class StepIllumination:
 class LumiState(Component):
     """See the module docstring."""
     phase = Phase.ILLUMINATION
+    provides = (Relighting,)
 
     def __init__(self, config: LumiStateConfig):
         super().__init__()
@@ -337,9 +338,6 @@ class LumiState(Component):
             self.relight_source / self.config.num_frames
         return interpolate_in_time(table[index], index.to(torch.float64) / self.config.num_frames,
                                    time)
-
-    def relighting(self) -> "LumiState":
-        return self
 
     @contextmanager
     def relit(self, source: str | int) -> Iterator[None]:

@@ -46,6 +46,8 @@ from torch import Tensor, nn
 
 from surgsplat.image.pinhole import backproject
 from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
+from surgsplat.model.capabilities import (DensifyWeighting, GradientGate, PointSource,
+                                          ToolMembership, ToolMotion)
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
                                        InitialPoints, ParamGroup, RenderContext, SceneInfo,
                                        SetupContext)
@@ -115,6 +117,7 @@ class ToolField(Component):
 
     phase = Phase.TOOL
     separates_tool = True
+    provides = (ToolMembership, ToolMotion, PointSource, GradientGate, DensifyWeighting)
 
     def __init__(self, config: ToolFieldConfig):
         super().__init__()
@@ -227,9 +230,6 @@ class ToolField(Component):
     def tool_members(self, gaussians: GaussianModel) -> Tensor:
         """[N] bool: p = sigmoid(s) < tau = 0.5, i.e. not s >= 0."""
         return ~(gaussians.params[SEMANTIC_KEY].detach() >= 0.0)
-
-    def tool_motion(self) -> "ToolField":
-        return self
 
     def channel_descriptors(self) -> tuple[ChannelDescriptor, ...]:
         return (ChannelDescriptor(TOOL_CHANNEL, ChannelKind.PROBABILITY, Colormap.INFERNO),)

@@ -15,6 +15,7 @@ from surgsplat.data.scene import load_scene
 from surgsplat.export.mesh import MeshExtractor, MeshOptions
 from surgsplat.methods.endogsg.sdf import SDFConfig, SDFField
 from surgsplat.methods.registry import method_config
+from surgsplat.model.capabilities import SignedDistanceField
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, RenderContext
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
@@ -109,6 +110,7 @@ class BallConfig(ComponentConfig, kind="test_ball_sdf"):
 
 class Ball(Component):
     phase = Phase.LOSS  # offers a signed distance field, changes nothing
+    provides = (SignedDistanceField,)
 
     def __init__(self, radius: float):
         super().__init__()
@@ -117,9 +119,6 @@ class Ball(Component):
 
     def signed_distance(self, points: Tensor) -> Tensor:
         return points.norm(dim=1) - self.radius
-
-    def signed_distance_field(self) -> "Ball":
-        return self
 
 
 def anchored_model(count: int, ball: Ball, config: MeshAnchorConfig) -> tuple[MeshAnchor,
