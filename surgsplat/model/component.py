@@ -5,8 +5,8 @@ The Trainer, checkpoints, run loading and the densification strategy handle ever
 same way and never name one. A component declares:
 
 - its phase (`phase`, see `model.phases`: anchor, deformation, tool, exposure, illumination,
-  opacity, surface, shading, loss, camera), from which the model orders the components: the
-  order of a method's config does not matter;
+  opacity, surface, shading, loss, camera, or a phase a method declares between two of them),
+  from which the model orders the components: the order of a method's config does not matter;
 - its network parameters as optimiser groups with a learning-rate schedule (`param_groups`);
 - its per-Gaussian attributes (`initial_attributes`), learnt with the rate `attribute_lrs` gives
   them (in `GaussianModel.params`) or, when it gives none, kept as state (e.g. the face a
@@ -189,8 +189,8 @@ class Component(nn.Module):
     """One piece of a method; see the module docstring. Hooks default to contributing nothing."""
 
     phase: ClassVar[Phase | str | None] = None
-    """Where the component acts: a `model.phases.Phase` or its value; every component class
-    declares it."""
+    """Where the component acts: a `model.phases.Phase` or a declared phase's name; every
+    component class declares it."""
     separates_tool: ClassVar[bool] = False
     """True when `transform` leaves the tool out of renders asked with `when.tissue_only`."""
     provides: tuple[type, ...] = ()

@@ -15,7 +15,7 @@ from surgsplat.methods.registry import PRESETS, method_config
 from surgsplat.model.component import Component, FrameTime, SceneInfo
 from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GaussianConfig, GaussianModel
-from surgsplat.model.phases import Phase, order_by_phase
+from surgsplat.model.phases import PHASES, Phase, declare_phase, order_by_phase, phase_order
 from surgsplat.train.checkpoint import build_components
 from surgsplat.train.trainer import Trainer
 
@@ -92,9 +92,38 @@ def test_two_components_of_a_phase_that_takes_one_are_refused_in_one_line():
     assert "\n" not in message
     assert "'deformation' and 'second' both have the phase deformation" in message
     with pytest.raises(SurgsplatError, match=r"^component 'odd' \(Stage\) declares the phase "
-                                             r"None; .* one of anchor, deformation, appearance, "
-                                             r"tool"):
+                                             r"None; .* a declared phase: anchor, deformation, "
+                                             r"appearance, tool"):
         order_by_phase({"odd": Stage(None, 1.0)})
+
+
+@pytest.fixture
+def declared_phases():
+    """The declared phases, restored after the test."""
+    saved = dict(PHASES)
+    yield PHASES
+    PHASES.clear()
+    PHASES.update(saved)
+
+
+def test_a_phase_declared_between_two_orders_its_component_there(declared_phases):
+    declare_phase("glaze", after=(Phase.SHADING,), before=(Phase.LOSS,))
+    order = phase_order()
+    assert order.index("shading") < order.index("glaze") < order.index("loss")
+    stages = {"loss": Stage(Phase.LOSS, 2.0), "glaze": Stage("glaze", 3.0),
+              "shade": Stage(Phase.SHADING, 5.0)}
+    assert list(order_by_phase(stages)) == ["shade", "glaze", "loss"]
+
+
+def test_a_phase_that_cannot_be_placed_is_refused_and_not_kept(declared_phases):
+    with pytest.raises(SurgsplatError, match="undeclared phase 'nowhere'"):
+        declare_phase("lost", after=("nowhere",))
+    with pytest.raises(SurgsplatError, match="circular"):
+        declare_phase("loop", after=(Phase.LOSS,), before=(Phase.ANCHOR,))
+    with pytest.raises(SurgsplatError, match="'tool' is declared already"):
+        declare_phase("tool")
+    assert "lost" not in PHASES and "loop" not in PHASES
+    assert phase_order() == tuple(Phase)
 
 
 @pytest.mark.slow
