@@ -94,6 +94,12 @@ def test_preset_table_keeps_one_method_its_columns_and_its_targets():
     assert not [line for line in lines if "drawer" in line]
 
 
+def test_a_report_without_the_presets_rows_gives_no_table():
+    report = {"suite": "speed", "rows": [{"case": "drawer", "method": "drawer"}],
+              "columns": ["psnr_tissue"]}
+    assert preset_table(report, "endogsg") == ""
+
+
 def test_a_preset_region_names_its_suite_and_its_preset():
     assert preset_region_parts("preset_fidelity_endogsg") == ("fidelity", "endogsg")
     assert preset_region_parts("preset_speed_deform3dgs") == ("speed", "deform3dgs")
