@@ -32,8 +32,8 @@ import torch
 from surgsplat.fields.gaussian_basis import deformation_channels
 from surgsplat.fields.hexplane import plane_features
 from surgsplat.image.blur import gaussian_blur
-from surgsplat.methods.endoplanar.normal_consistency import normal_consistency
 from surgsplat.image.ssim import ssim, ssim_map
+from surgsplat.methods.endoplanar.normal_consistency import normal_consistency
 from surgsplat.render import native
 from surgsplat.render.render import render
 
