@@ -12,9 +12,9 @@ from surgsplat.methods.ranges import dotted
 @dataclass
 class LearningRates:
     """Adam learning rates of the canonical Gaussians' own parameters. Only the means' rate
-    decays: decaying the shapes', opacities' and colours' rates 10x as well cost psnr_tissue
-    1.5 dB with deform3dgs (42.71 vs 44.19) and 2.0 dB with endogaussian (38.36 vs 40.38)
-    (full phantom, 3000 iterations, seed 1; issue 28)."""
+    decays; the shapes', opacities' and colours' rates stay constant (3DGS's), since decaying
+    them as well cost tissue PSNR (measured: docs/methods/shared-components.md, Learning rates
+    of the Gaussians)."""
 
     means: float = field(default=1.6e-4, metadata={"range": "(0, inf)"})
     """Initial rate of the means, times the scene extent (3DGS convention)."""
@@ -44,7 +44,8 @@ class TrainConfig:
                                                    metadata={"range": "[0, 1]"})
     """Colour behind all Gaussians (endoscopic scenes are dark)."""
     checkpoint_every: int = field(default=500, metadata={"range": "[1, inf)"})
-    """Write RUN/checkpoints/latest.pt every this many iterations (and at the end, and on Ctrl-C)."""
+    """Write RUN/checkpoints/latest.pt every this many iterations (and at the end, and on
+    Ctrl-C)."""
     checkpoint_seconds: float = field(default=60.0, metadata={"range": "[0, inf)"})
     """Also write it when this many seconds of wall time have passed since the last one, so a
     kill -9 loses at most about this much training."""
@@ -149,9 +150,9 @@ class DensifyConfig:
     parent's longest axis s, that axis divided by split_factor to s', the other two kept, with
     d^2 + s'^2 = s^2 so that the pair keeps the parent's extent and spread along that axis.
     sample (3DGS): the children at two random points of the parent's Gaussian, every axis divided
-    by split_factor, which can leave part of what the parent covered uncovered. On the full
-    phantom (deform3dgs, benchmarks/bench_densify_split.py), a densifying step cost the test
-    PSNR 1.2 dB on average with sample and 0.4 dB with long_axis."""
+    by split_factor, which can leave part of what the parent covered uncovered, so that a
+    densifying step costs more test PSNR than with long_axis (measured:
+    docs/benchmarks/speed.md, Densification: how a large Gaussian is split)."""
     split_factor: float = field(default=1.6, metadata={"range": "[1, inf)"})
     """A split Gaussian's children have the parent's scale (long_axis: its longest axis) divided
     by this."""
@@ -163,9 +164,9 @@ class DensifyConfig:
     """Prune Gaussians whose projected radius exceeded this many pixels (0 = no limit)."""
     opacity_reset_every: float = field(default=0.0, metadata={"range": "[0, 1]"})
     """Reset opacities to reset_opacity every this fraction of the run while densification runs
-    (3DGS: 0.1 of its 30000 iterations; 0 = never). Never by default: on the full phantom
-    (deform3dgs, 3000 iterations, one seed) resets at 0.3 and 0.6 of the run cost 0.45 dB of
-    psnr_tissue (39.09 against 39.53) and raised the Gaussian P2S median from 0.391 to 0.409 mm."""
+    (3DGS: 0.1 of its 30000 iterations; 0 = never). Never by default: resets cost tissue PSNR
+    and moved the Gaussians off the surface (measured: docs/methods/shared-components.md,
+    Densification)."""
     reset_opacity: float = field(default=0.01, metadata={"range": "(0, 1)"})
     """Opacity ceiling applied by a reset."""
 

@@ -26,26 +26,22 @@ straight-through: the forward pass uses the clipped value, the backward pass the
 (sg(clip(p)) + p - sg(p)), so the photometric gradient keeps moving the raw centre, whose drift
 off the surface the SDF's projection loss pulls back.
 
-Deviation (issue 28): the scales and rotation are not clipped straight-through as the supplement
-does, but projected: the anchored tissue Gaussians' scale and rotation parameters are set to
-their clipped values after every training step (`after_step`) and whenever Gaussians get a face
+Deviation: the scales and rotation are not clipped straight-through as the supplement does, but
+projected: the anchored tissue Gaussians' scale and rotation parameters are set to their clipped
+values after every training step (`after_step`) and whenever Gaussians get a face
 (`before_render`), so every render draws its parameters as they are and each step starts from
-the shape that is rendered (projected gradient; `transform` leaves the shapes alone). With the
-straight-through clip nothing pulls them back: on a trained `drawer` run (full phantom, 3000
-iterations) 39% of the normal scales had grown past their clip, rendering its own raw scales gave
-18.2 dB against 34.5, and densification, which splits by the raw scales along the raw axes,
-worked from shapes that were never rendered. With the projection (full phantom, 3000
-iterations, seed 0): psnr_occluded 28.66 dB against 22.08, SDF mesh P2S median 0.065 mm against
-0.095, psnr_tissue 36.14 against 35.95 (within seed noise). The centres keep the straight-through
-clip: the SDF's losses use the raw centres (see `fields.sdf`).
+the shape that is rendered (projected gradient; `transform` leaves the shapes alone). With a
+straight-through clip nothing pulls them back: the raw scales grow past their clip, the raw
+shapes no longer render the scene, and densification, which splits by the raw scales along the
+raw axes, works from shapes that were never rendered (measured: docs/methods/drawer.md,
+Deviations). The centres keep the straight-through clip: the SDF's losses use the raw centres
+(see `fields.sdf`).
 
-Defaults of the two clips the supplement gives no value for (issue 28; full phantom, 3000
-iterations, the `drawer` preset with the projection, psnr_tissue of seeds 0 and 1): s_beta 0.25
-and phi_max 30 degrees (flat, face-aligned shapes) 36.14 and 36.70 dB; 0.5 and 60 degrees 37.42
-and 36.66; 1 and 90 degrees (the normal scale clipped as the in-face ones, the tilt free) 38.27
-and 37.02, with the same hidden-tissue PSNR (28.3-28.8 dB) and SDF mesh P2S (0.05-0.065 mm
-median). So the defaults are 1 and 90: the surface a simulator uses is the SDF's mesh, which
-the Gaussians' flatness does not improve, and flat shapes cost about 1.2 dB.
+The supplement gives no value for two of the clips, the normal-scale ratio s_beta and the tilt
+phi_max. Their defaults, 1 and 90 degrees, leave both open (the normal scale clipped as the
+in-face ones, the tilt free): the surface a simulator uses is the SDF's mesh, which the
+Gaussians' flatness does not improve, and flat, face-aligned shapes cost tissue PSNR (measured:
+docs/methods/drawer.md, Deviations).
 
 How the Gaussians follow the deforming surface: this component's phase (anchor) comes first, so
 it turns the canonical Gaussians into anchored canonical Gaussians; the deformation field then
@@ -102,10 +98,12 @@ class MeshAnchorConfig(ComponentConfig, kind="mesh_anchor"):
     """s_alpha: the two in-face scales are clipped to this many face radii."""
     normal_scale_ratio: float = field(default=1.0, metadata={"range": "(0, inf)"})
     """s_beta: the third (normal) scale is clipped to s_alpha s_beta face radii. The supplement
-    gives no value; 1 (no flattening beyond the in-face clip) measured best (module docstring)."""
+    gives no value; 1 (no flattening beyond the in-face clip) measured best
+    (docs/methods/drawer.md, Deviations)."""
     max_tilt_deg: float = field(default=90.0, metadata={"range": "[0, 90]"})
     """phi_max: largest angle between a Gaussian's third axis and its face's normal, degrees
-    (90: free). The supplement gives no value; 90 measured best (module docstring)."""
+    (90: free). The supplement gives no value; 90 measured best (docs/methods/drawer.md,
+    Deviations)."""
     min_face_radius: float = field(default=0.25, metadata={"range": "(0, inf)"})
     """Face radius used for the clips: the inradius, at least this many marching-cubes cells."""
     candidate_faces: int = field(default=8, metadata={"range": "[1, inf)"})

@@ -31,8 +31,8 @@ The coupling, as the component contract expresses it:
 Where the field meets the Gaussians: at their canonical parameters params["means"], also when
 another component places the rendered canonical Gaussians elsewhere (DRAWER's mesh anchors clip
 them onto the faces of this field's zero level, where f is 0 by construction: the projection loss
-would then never pull a drifting mean back, nor would the field learn where the tissue is; on the
-full phantom that lost the mesh over half the scene and 21 dB, issue 28).
+would then never pull a drifting mean back, nor would the field learn where the tissue is, and
+the mesh is lost over much of the scene; measured: docs/methods/endogsg.md, Deviations).
 
 Sign convention: f > 0 in front of the surface (the camera side, free space), f < 0 behind it.
 The field provides the method's `SignedDistanceField` (`model.capabilities`), from which mesh
@@ -79,13 +79,11 @@ class SDFConfig(ComponentConfig, kind="sdf"):
     """Width of the MLP's two hidden layers."""
     grid_lr: float = field(default=1e-3, metadata={"range": "(0, inf)"})
     """Adam learning rate of the feature grids. Adam moves every parameter by about its
-    learning rate per step, and f is the MLP's output times `unit()` (tens of mm on the
-    phantom), so the zero level moves by a good fraction of that per step: with 1e-2 (and
-    1e-3 for the MLP) the mean of f at the Gaussians swung between +1.7 and -1.6 mm within
-    tens of steps (the bell is ~1.6 mm wide), the first meshes of DRAWER's anchors were
-    extracted off the tissue, and one seed of two never recovered (psnr_tissue 26.6 against
-    36.1 dB); with 1e-3 and 1e-4 the median |f| at the Gaussians was 0.17 mm at step 300 and
-    that seed reached 35.7 dB (full phantom, issue 28)."""
+    learning rate per step, and f is the MLP's output times `unit()` (half the box diagonal),
+    so the zero level moves by a good fraction of that per step: at ten times these rates the
+    mean of f at the Gaussians swings by more than the bell's width within tens of steps,
+    and meshes extracted from it early (DRAWER's anchors) lie off the tissue (measured:
+    docs/methods/endogsg.md, Deviations)."""
     mlp_lr: float = field(default=1e-4, metadata={"range": "(0, inf)"})
     """Adam learning rate of the MLP (see `grid_lr`); the fit to the initial points uses 5x it."""
     lr_decay: float = field(default=0.01, metadata={"range": "(0, 1]"})

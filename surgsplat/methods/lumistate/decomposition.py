@@ -16,8 +16,8 @@
   itself. sigma is bounded to +-`max_log_gain` (a tanh). The MLP's last layer starts with zero
   weights, delta at 0 and every sigma at the log of the training frames' mean brightness S_t:
   training starts from one uniform illumination, so that Stage 1 fits base colours at the scale
-  of a reflectance, not of the lit colour that Stage 2 would have to double (issue 28,
-  hypothesis 13).
+  of a reflectance, not of the lit colour that Stage 2 would have to double (a deviation, see
+  docs/methods/lumistate.md, Deviations).
 - The fusion MLP runs on the occupied corners of a grid of `modulation_grid` cells per side over
   the normalised positions, and each Gaussian takes the trilinear interpolation of its cell's 8
   corners (a deviation: the paper evaluates the MLP at every Gaussian). Illumination is smooth,
@@ -39,8 +39,8 @@
   carry the upsampled L_t as `output.extras["illumination"]` [H, W, 1]. A frame whose map Stage 2
   never computed keeps the map 1 (uniform light).
 - Losses "retinex" (Eq. 7), "bright_channel" (Eq. 8) and "illumination_transfer" (G_t against
-  L_t, a deviation, see the lumistate preset), see retinex.py. Stage 2 is these terms'
-  `start` (a fraction of the run) in the method config; before it the decoder
+  L_t, a deviation, measured in docs/methods/lumistate.md, Deviations), see retinex.py. Stage 2
+  is these terms' `start` (a fraction of the run) in the method config; before it the decoder
   never runs (Stage 1: "illumination is not explicitly predicted; only e_t modulates
   appearance").
 - Relighting (the component provides `Relighting`, `model.capabilities`): `relit("uniform")`
@@ -238,7 +238,8 @@ class LumiState(Component):
 
     def __init__(self, config: LumiStateConfig):
         super().__init__()
-        if config.num_frames < 1 or config.map_height < MAP_MULTIPLE or config.map_width < MAP_MULTIPLE:
+        if (config.num_frames < 1 or config.map_height < MAP_MULTIPLE
+                or config.map_width < MAP_MULTIPLE):
             raise SurgsplatError("lumistate: the config must be resolved for a scene (num_frames, "
                                  "map_height, map_width) before it is built")
         if not 0 <= config.sh_degree <= 3:

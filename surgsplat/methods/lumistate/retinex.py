@@ -23,7 +23,8 @@ from surgsplat.methods.lumistate.illumination import bright_channel, brightness
 from surgsplat.losses.photometric import masked_l1
 
 
-def retinex_loss(reflectance: Tensor, illumination: Tensor, image: Tensor, tissue: Tensor) -> Tensor:
+def retinex_loss(reflectance: Tensor, illumination: Tensor, image: Tensor,
+                 tissue: Tensor) -> Tensor:
     """Eq. 7: mean |R * L - I| over the tissue pixels [H, W] (bool) and the 3 channels, for
     R [H, W, 3], L [H, W] and I [H, W, 3]."""
     return masked_l1(reflectance * illumination[..., None], image, tissue)
@@ -43,6 +44,7 @@ def illumination_transfer_loss(gain: Tensor, illumination: Tensor, alpha: Tensor
     """mean |G - alpha L| over the tissue pixels [H, W] (bool), for the rendered gain G
     [H, W, 1] (alpha-blended, so compared with L [H, W] times the accumulated opacity alpha
     [H, W]); L and alpha are targets here (no gradient through them: letting L follow G too
-    left the reflectance error unchanged or worse, see the lumistate preset)."""
+    left the reflectance error unchanged or worse, measured in docs/methods/lumistate.md,
+    Deviations)."""
     target = (illumination * alpha).detach()[..., None]  # [H, W, 1]
     return masked_l1(gain, target, tissue)

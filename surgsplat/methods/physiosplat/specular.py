@@ -8,18 +8,18 @@ is the view direction v, and a Gaussian adds the white lobe beta exp((n . v - 1)
 The normal n comes from the rendered depth (as `image.pinhole.depth_normals`), so it exists per
 pixel, after rasterisation; in a model of planar Gaussians (`model.planar`, the SURFACE phase,
 before this one) it is their blended normal map instead, which the depth-normal loss trains.
-One-pixel central differences of a raw rendered depth turn 0.05 mm of depth jitter into normals
-tilted by ~13 degrees on the phantom, which scatters a lobe as sharp as this one; the depth is
-therefore first smoothed by the 11x11 Gaussian window (sigma 1.5 px, `image.blur`), normalised
-by the blurred validity so that edges of valid depth are not pulled towards 0, which cuts white
-jitter's tilt about fivefold. The lobe is shaded per pixel (deferred) from the alpha-blended
-beta (`specular_albedo` channel: sum_i w_i beta_i, which carries the alpha_i of Eq. 7) and the
-blended sharpness 1 / gamma^2 (`specular_sharpness` channel, normalised by the pixel's alpha),
-and added to the rendered colour: C += beta_bar exp((n . v - 1) sharpness_bar). The depth normal
-is detached, so highlights never bend the geometry; pixels without a valid depth normal get no
-lobe. The lobe is white: it is not scaled by the frame's exposure gain. Scaled by it, as the
-diffuse colours are, it cost 0.44 dB of psnr_tissue (physiosplat, full phantom, 3000 iterations,
-seeds 0 and 1: 40.00 and 40.42 against 40.60 and 40.70 dB) at 1.05x the CPU time (issue 28).
+One-pixel central differences of a raw rendered depth turn depth jitter of a small fraction of
+a millimetre into normals tilted by degrees, which scatters a lobe as sharp as this one; the
+depth is therefore first smoothed by the 11x11 Gaussian window (sigma 1.5 px, `image.blur`),
+normalised by the blurred validity so that edges of valid depth are not pulled towards 0, which
+cuts white jitter's tilt about fivefold. The lobe is shaded per pixel (deferred) from the
+alpha-blended beta (`specular_albedo` channel: sum_i w_i beta_i, which carries the alpha_i of
+Eq. 7) and the blended sharpness 1 / gamma^2 (`specular_sharpness` channel, normalised by the
+pixel's alpha), and added to the rendered colour: C += beta_bar exp((n . v - 1) sharpness_bar).
+The depth normal is detached, so highlights never bend the geometry; pixels without a valid
+depth normal get no lobe. The lobe is white: it is not scaled by the frame's exposure gain as
+the diffuse colours are, since scaling it cost tissue PSNR and CPU time (measured:
+docs/methods/physiosplat.md, Deviations).
 """
 
 from __future__ import annotations
@@ -49,15 +49,11 @@ class SpecularConfig(ComponentConfig, kind="specular"):
     """Initial beta of every Gaussian, in (0, 1). The paper's 0.1 adds 0.1 of white to every
     surface facing the camera at the start, on top of degree-0 colours initialised from images
     that already contain the highlights (counted twice); 0.01 starts the lobe near zero and lets
-    the highlights move into it. Full phantom, 3000 iterations, seed 1 (physiosplat):
-    psnr_tissue 36.77 dB at 0.1 against 40.70 at 0.01 (issue 28)."""
+    the highlights move into it (measured: docs/methods/physiosplat.md, Deviations)."""
     init_roughness: float = field(default=0.2, metadata={"range": "(0, inf)"})
     """Initial gamma: 0.2 gives sharpness 25, a lobe at 1/e where n . v = 0.96. Starting as
-    sharp as the phantom's highlights (0.129, sharpness 60) did not let the lobe take them (full
-    phantom, 3000 iterations, seed 1, physiosplat: psnr_tissue 40.31 against 40.70 dB,
-    psnr_specular 33.86 against 34.20); nor did it with a 5x albedo rate (40.55 and 34.01 dB:
-    the albedos split into Gaussians fully specular and none, the lobe's mean over the tissue a
-    third of the true highlights') (issue 28)."""
+    sharp as the scene's highlights did not let the lobe take them, at the albedo's default
+    learning rate nor at a larger one (measured: docs/methods/physiosplat.md, Deviations)."""
     albedo_lr: float = field(default=0.01, metadata={"range": "[0, inf)"})
     """Adam learning rate of the albedo logits."""
     roughness_lr: float = field(default=0.005, metadata={"range": "[0, inf)"})

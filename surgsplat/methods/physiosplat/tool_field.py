@@ -86,8 +86,9 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     semantic_lr: float = field(default=0.005, metadata={"range": "[0, inf)"})
     """Adam learning rate of the semantic logits. Adam moves a logit by about this per step
     whatever the gradient's size, and the mask loss pushes tissue Gaussians seen through the
-    tool towards the tool: at 0.05 they flip within ~80 visits and leave holes in the tool-free
-    render (full phantom, 400 iterations: psnr_occluded 15 dB); 0.005 keeps the initial split."""
+    tool towards the tool: at ten times this rate they flip within tens of visits and leave
+    holes in the tool-free render; 0.005 keeps the initial split (measured:
+    docs/methods/physiosplat.md, Deviations)."""
     rotation_lr: float = field(default=1e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the per-frame rotation vectors (radians)."""
     translation_lr: float = field(default=1e-3, metadata={"range": "[0, inf)"})
@@ -312,10 +313,10 @@ class ToolField(Component):
           tool probability at the tissue Gaussians under it: fade, shrink and move them, or
           flip their logits (per-Gaussian Adam moves a logit by about the learning rate per
           step whatever the gradient's size).
-        - Through the tool's residual transmittance (~8% at tool pixels on the full phantom)
-          the photometric loss would paint the hidden tissue in the tool's colours (at 3000
-          iterations without a gate the tool-free render showed a dark tool-shaped smear:
-          psnr_occluded 12.8 dB), and move it out from behind the tool and shrink it.
+        - Through the tool's residual transmittance the photometric loss would paint the
+          hidden tissue in the tool's colours (without a gate the tool-free render shows a
+          dark tool-shaped smear; measured: docs/methods/physiosplat.md, Deviations), and move
+          it out from behind the tool and shrink it.
         The hidden tissue learns from the pixels where it shows around the tool, and its
         position from the biomechanical energies, which act on the state, not through the
         render."""
