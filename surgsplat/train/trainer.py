@@ -233,12 +233,9 @@ class Trainer:
                  "sh_rest": (lr.sh_rest, None)}
         rates.update({name: rate if isinstance(rate, tuple) else (rate, None)
                       for name, rate in self.model.attribute_lrs().items()})
-        groups = []
-        for name, param in self.model.gaussians.params.items():
-            if name not in rates:
-                raise SurgsplatError(f"per-Gaussian attribute {name!r} has no learning rate "
-                                     "(its component's attribute_lrs() must name it)")
-            groups.append(ParamGroup(name, [param], *rates[name]))
+        # every learnt per-Gaussian tensor has a rate: attributes without one are buffers
+        groups = [ParamGroup(name, [param], *rates[name])
+                  for name, param in self.model.gaussians.params.items()]
         return groups + self.model.component_param_groups()
 
     def _build_optimizer(self) -> tuple[torch.optim.Optimizer, dict[str, ParamGroup]]:
