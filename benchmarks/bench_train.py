@@ -6,7 +6,8 @@ schedule.
     python benchmarks/bench_train.py [--presets deform3dgs surgsplat ...] [--threads 2]
                                      [--iters N] [--curve-every 100] [--set KEY=VALUE ...]
                                      [--profile] [--profile-iters N] [--phantom DIR]
-                                     [--skip-real] [--work DIR] [--out FILE] [--merge] [--json]
+                                     [--skip-real] [--isas avx512 avx2 ...] [--work DIR]
+                                     [--out FILE] [--merge] [--json]
 
 A case is one `Trainer` run of a preset (with the --set settings, as `surgsplat train --set`)
 in a child process with --threads threads of torch and of the native kernels, so that its peak
@@ -34,6 +35,13 @@ covers its coarse and fine stages in their proportions; the tables give each pha
 case's scaled step seconds, and so what the steps would cost with one phase made free. Without
 py-spy it is skipped with a note.
 
+With --isas, every case runs once per named ISA variant of the native kernels (SURGSPLAT_ISA in
+its process), one after the other: the wall seconds of a case on a lesser variant against the
+machine's best, measured within one run, say what a CPU without that best ISA (an AVX2-only
+laptop on an AVX-512 machine's figures) costs on this same hardware. The probe runs the
+fastest variant in every case, so that the scaled times of the variants compare; the targets are
+checked on the fastest variant's rows.
+
 Results go to benchmarks/results/bench_train-<cpu>-<best ISA>.json (or --out) with a plot of the
 curves beside it (.png); benchmarks/readme_tables.py turns them into the README's table.
 
@@ -47,6 +55,7 @@ runs in at most 60 s and ends at psnr_tissue >= 45.35 dB (45.65 - 0.3); surgspla
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import shutil
@@ -90,8 +99,9 @@ RENDER_REPEATS = 5
 
 
 def probe_evals_per_s() -> float:
-    """The limit probe's (Gaussian, pixel) evaluations per second now (median of 5)."""
-    module = native.native_module()
+    """The limit probe's (Gaussian, pixel) evaluations per second now (median of 5), in the
+    machine's fastest ISA variant whichever variant the case runs: it measures the machine."""
+    module = native.variant_module(native.available_isas()[0])
     times = []
     for _ in range(5):
         started = time.perf_counter()
@@ -229,15 +239,17 @@ def real_clip_scene(work: Path) -> Path:
     return scene_dir
 
 
-def case_in_subprocess(scene: str, scene_dir: Path, preset: str, args) -> dict:
-    """run_case in a child process of this script (its stderr passed through)."""
+def case_in_subprocess(scene: str, scene_dir: Path, preset: str, isa: str, args) -> dict:
+    """run_case in a child process of this script running the native kernels of ISA variant
+    `isa` (its stderr passed through)."""
     command = [sys.executable, __file__, "--case", f"{scene}:{preset}:{scene_dir}",
                "--work", str(args.work), "--threads", str(args.threads),
                "--curve-every", str(args.curve_every),
                *(["--iters", str(args.iters)] if args.iters else []),
                *(arg for setting in args.set for arg in ("--set", setting))]
-    done = subprocess.run(command, stdout=subprocess.PIPE, text=True, check=True)
-    return {"scene": scene, **json.loads(done.stdout.strip().splitlines()[-1])}
+    done = subprocess.run(command, stdout=subprocess.PIPE, text=True, check=True,
+                          env={**os.environ, native.ISA_ENV: isa})
+    return {"scene": scene, "isa": isa, **json.loads(done.stdout.strip().splitlines()[-1])}
 
 
 def profile_case(scene_dir: Path, preset: str, iterations: int, args) -> dict:
@@ -257,11 +269,12 @@ def target(rule: str, value: float | None, bound: float, at_least: bool = False)
             "bound": bound, "met": met}
 
 
-def check_targets(rows: list[dict]) -> list[dict]:
-    """Issue 52's targets that the phantom rows measure (a target needing a preset that did not
-    run at its default schedule, without --set, is left out)."""
+def check_targets(rows: list[dict], isa: str) -> list[dict]:
+    """Issue 52's targets that the phantom rows of ISA variant `isa` measure (a target needing
+    a preset that did not run at its default schedule, without --set, is left out)."""
     phantom = {row["preset"]: row for row in rows  # at the default schedule: no --set
-               if row["scene"] == PHANTOM and not row.get("settings")}
+               if row["scene"] == PHANTOM and not row.get("settings")
+               and row.get("isa", isa) == isa}
     targets = []
     for preset, (reference, bound) in TARGETS.items():
         if preset in phantom:
@@ -288,19 +301,24 @@ def plot_curves(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    first_isa = rows[0].get("isa")
+
+    def name(row: dict) -> str:  # the preset, and the ISA variant where it is not the first's
+        isa = row.get("isa", first_isa)
+        return row["preset"] if isa == first_isa else f"{row['preset']} on {isa}"
+
     scenes = list(dict.fromkeys(row["scene"] for row in rows))
-    colours = {preset: f"C{i}" for i, preset in
-               enumerate(dict.fromkeys(row["preset"] for row in rows))}
+    colours = {case: f"C{i}" for i, case in enumerate(dict.fromkeys(map(name, rows)))}
     figure, axes = plt.subplots(1, len(scenes), figsize=(7 * len(scenes), 4.5), squeeze=False)
     for axis, scene in zip(axes[0], scenes):
         cases = [row for row in rows if row["scene"] == scene]
         for row in cases:
             scale = row["probe_evals_per_s"] / REFERENCE_PROBE
             _, seconds, psnr = zip(*row["curve"])
-            axis.plot([s * scale for s in seconds], psnr, marker=".", color=colours[row["preset"]],
-                      label=f"{row['preset']} ({row['test_psnr_tissue']:.2f} dB)")
+            axis.plot([s * scale for s in seconds], psnr, marker=".", color=colours[name(row)],
+                      label=f"{name(row)} ({row['test_psnr_tissue']:.2f} dB)")
             axis.axhline(row["test_psnr_tissue"] - TOLERANCE_DB, linestyle="--", linewidth=0.8,
-                         color=colours[row["preset"]])
+                         color=colours[name(row)])
         lowest_final = min(row["test_psnr_tissue"] for row in cases)
         axis.set_xlim(left=0)
         axis.set_ylim(bottom=lowest_final - 6)
@@ -315,7 +333,7 @@ def plot_curves(rows: list[dict], path: Path) -> None:
 
 
 def print_row(row: dict) -> None:
-    print(f"{row['scene']} / {row['preset']}: {row['iterations']} iterations, "
+    print(f"{row['scene']} / {row['preset']} ({row['isa']}): {row['iterations']} iterations, "
           f"{row['train_seconds']:.0f} s training ({row['train_seconds_scaled']:.0f} scaled; "
           f"{row['seconds_per_iter']:.3f} s/iter), {row['wall_seconds']:.0f} s wall; test "
           f"psnr_tissue {row['test_psnr_tissue']:.2f}, within 1 dB at "
@@ -355,6 +373,10 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--work", type=Path,
                         default=Path(tempfile.gettempdir()) / "surgsplat-bench-train")
     parser.add_argument("--skip-real", action="store_true", help="skip the CholecSeg8k clip")
+    parser.add_argument("--isas", nargs="+", choices=native.ISAS, default=None,
+                        help="ISA variants of the native kernels to run every case with "
+                             "(default: the fastest this machine runs, on which the targets "
+                             "are checked)")
     parser.add_argument("--out", type=Path, help="JSON file, the plot beside it (default: "
                         "benchmarks/results/bench_train-<cpu>-<best ISA>.json)")
     parser.add_argument("--merge", action="store_true",
@@ -381,12 +403,18 @@ def cases(args) -> list[tuple[str, Path, str]]:
     return found + [(REAL, real_clip_scene(args.work), preset) for preset in real]
 
 
+def case_key(row: dict, report_isa: str) -> tuple[str, str, str]:
+    """(scene, preset, ISA variant) of a row; rows written before --isas ran on `report_isa`."""
+    return row["scene"], row["preset"], row.get("isa", report_isa)
+
+
 def kept_rows(previous: dict, rows: list[dict]) -> list[dict]:
-    """The rows of the `previous` report whose (scene, preset) is not among `rows`, each with
-    the date it was measured on (its own, else its report's)."""
-    measured = {(row["scene"], row["preset"]) for row in rows}
-    return [{**row, "date": row.get("date", previous["date"][:10])} for row in previous["rows"]
-            if (row["scene"], row["preset"]) not in measured]
+    """The rows of the `previous` report whose (scene, preset, ISA) is not among `rows`, each
+    with the date it was measured on (its own, else its report's) and its ISA."""
+    isa = previous["system"]["isa"]
+    measured = {case_key(row, isa) for row in rows}
+    return [{**row, "isa": row.get("isa", isa), "date": row.get("date", previous["date"][:10])}
+            for row in previous["rows"] if case_key(row, isa) not in measured]
 
 
 def main() -> None:
@@ -403,12 +431,17 @@ def main() -> None:
     if args.profile and profile_train.py_spy() is None:
         print("note: py-spy is not installed; no per-phase breakdown (pip install py-spy)")
         args.profile = False
+    fastest = native.available_isas()[0]
+    isas = args.isas or [fastest]
+    for isa in isas:
+        if (reason := native.isa_unavailable(isa)) is not None:
+            sys.exit(f"--isas {isa}: {reason}")
     args.work.mkdir(parents=True, exist_ok=True)
     rows = []
-    for scene, scene_dir, preset in cases(args):
-        rows.append(case_in_subprocess(scene, scene_dir, preset, args))
+    for (scene, scene_dir, preset), isa in itertools.product(cases(args), isas):
+        rows.append(case_in_subprocess(scene, scene_dir, preset, isa, args))
         print_row(rows[-1])
-        if args.profile:
+        if args.profile and isa == fastest:
             iterations = args.profile_iters or rows[-1]["iterations"]
             rows[-1]["profile"] = profile_case(scene_dir, preset, iterations, args)
             print_profile(rows[-1]["profile"])
@@ -418,7 +451,7 @@ def main() -> None:
         row["date"] = today
     if args.merge and out.is_file():
         rows = kept_rows(json.loads(out.read_text()), rows) + rows
-    targets = check_targets(rows)
+    targets = check_targets(rows, fastest)
     for checked in targets:
         print(f"target {checked['rule']}: {checked['value']} against {checked['bound']:g}, "
               f"{'met' if checked['met'] else 'NOT met'}")

@@ -34,9 +34,17 @@ def cell(row: dict, key: str, spec: str) -> str:
     return format(round(value) if spec == "d" else value, spec)
 
 
+def backward_efficiency(row: dict) -> float | None:
+    """A bench_render raster row's efficiency of the backward pass alone: its evaluations per
+    second of backward time (fwd+bwd ms - forward ms) over the probe's; None for a step row."""
+    if "efficiency_fwdbwd" not in row:
+        return None
+    return row["efficiency_fwdbwd"] * row["fwdbwd_ms"] / (row["fwdbwd_ms"] - row["fwd_ms"])
+
+
 def render_table(report: dict) -> str:
     """Markdown for one bench_render report: a line naming the machine, then one row per ISA
-    variant and case."""
+    variant and case, with the efficiency of forward, of backward alone and of both."""
     system = report["system"]
     lines = [
         f"{report['cpu']} ({system['logical_cpus']} logical CPUs, {system['torch_threads']} "
@@ -45,8 +53,8 @@ def render_table(report: dict) -> str:
         f"{report['date'][:10]}:",
         "",
         "| ISA | Gaussians | C | forward ms | FPS | fwd+bwd ms | train step ms | evals/s "
-        "| probe evals/s | efficiency fwd | efficiency fwd+bwd |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| probe evals/s | efficiency fwd | efficiency bwd | efficiency fwd+bwd |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in report["rows"]:
         lines.append(
@@ -55,6 +63,7 @@ def render_table(report: dict) -> str:
             f"| {cell(row, 'fwdbwd_ms', '.1f')} "
             f"| {cell(row, 'step_ms', '.0f')} | {cell(row, 'evals_per_s', '.2e')} "
             f"| {cell(row, 'probe_evals_per_s', '.2e')} | {cell(row, 'efficiency_fwd', '.2f')} "
+            f"| {cell({'bwd': backward_efficiency(row)}, 'bwd', '.2f')} "
             f"| {cell(row, 'efficiency_fwdbwd', '.2f')} |")
     return "\n".join(lines)
 
@@ -441,8 +450,9 @@ def train_table(report: dict, results: str = "benchmarks/results") -> str:
     ]
     for row in report["rows"]:
         settings = "".join(f" `{setting}`" for setting in row["settings"])
+        variant = "" if row.get("isa", system["isa"]) == system["isa"] else f" ({row['isa']})"
         lines.append(
-            f"| {row['scene']} | {row['preset']}{settings} | {row['iterations']} "
+            f"| {row['scene']} | {row['preset']}{settings}{variant} | {row['iterations']} "
             f"| {cell(row, 'test_psnr_tissue', '.2f')} "
             f"| {cell(row, 'seconds_to_minus_1db', '.0f')} "
             f"| {cell(row, 'seconds_to_minus_1db_scaled', '.0f')} "
@@ -458,12 +468,40 @@ def train_table(report: dict, results: str = "benchmarks/results") -> str:
         measured = "not reached" if target["value"] is None else f"{target['value']:.{digits}f}"
         lines.append(f"| {target['rule']} | {measured} | {target['relation']} "
                      f"{target['bound']:.{digits}f} | {'yes' if target['met'] else '**no**'} |")
+    lines += isa_ratio_lines(report)
     for row in report["rows"]:  # a profile of the first iterations only is left in the JSON
         if row.get("profile", {}).get("iterations") == row["iterations"]:
             lines += ["", *step_phases_table(row, report["reference_probe_evals_per_s"])]
     lines += ["", f"![test psnr_tissue against scaled training seconds]"
                   f"({results}/{report['plot']})"]
     return "\n".join(lines)
+
+
+def isa_ratio_lines(report: dict) -> list[str]:
+    """Markdown lines comparing, per case run on more than one ISA variant (bench_train
+    --isas), each lesser variant's scaled wall seconds with the report's own variant's (both
+    scaled by the probe of the machine's fastest variant)."""
+    best = report["system"]["isa"]
+    by_case: dict[tuple, dict[str, dict]] = {}
+    for row in report["rows"]:
+        case = (row["scene"], row["preset"], tuple(row["settings"]))
+        by_case.setdefault(case, {})[row.get("isa", best)] = row
+    lines = []
+    for (scene, preset, _), variants in by_case.items():
+        for isa, row in variants.items():
+            if isa != best and best in variants:
+                reference = variants[best]
+                lines.append(
+                    f"| {scene} | {preset} | {isa} | {row['wall_seconds_scaled']:.0f} "
+                    f"| {reference['wall_seconds_scaled']:.0f} "
+                    f"| {row['wall_seconds_scaled'] / reference['wall_seconds_scaled']:.2f} "
+                    f"| {row['test_psnr_tissue'] - reference['test_psnr_tissue']:+.2f} |")
+    if not lines:
+        return []
+    return ["", f"Each case on a lesser ISA variant of the native kernels against {best} on "
+                f"this machine (scaled wall seconds, by the probe of {best}):", "",
+            f"| scene | preset | ISA | wall s scaled | on {best} | ratio | psnr_tissue "
+            "difference, dB |", "|---|---|---|---|---|---|---|", *lines]
 
 
 RASTERISER_PHASES = ("rasterize forward", "rasterize backward")

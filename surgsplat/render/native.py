@@ -77,6 +77,14 @@ def available_isas() -> list[str]:
     return [isa for isa in ISAS if isa_unavailable(isa) is None]
 
 
+def variant_module(isa: str) -> ModuleType:
+    """The compiled module of ISA variant `isa`, whichever variant is in use (ValueError when
+    this machine cannot run it): for measuring one variant beside another."""
+    if (reason := isa_unavailable(isa)) is not None:
+        raise ValueError(reason)
+    return _import_variant(isa)
+
+
 def use_isa(isa: str | None) -> None:
     """Run the native kernels of ISA variant `isa` from now on (None: back to SURGSPLAT_ISA or
     the fastest). ValueError when this machine cannot run it."""

@@ -5,10 +5,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from readme_tables import (preset_region_parts, preset_table, step_phases_table,  # noqa: E402
-                           train_table)
+from readme_tables import (backward_efficiency, isa_ratio_lines, preset_region_parts,  # noqa: E402
+                           preset_table, render_table, step_phases_table, train_table)
 
 
 def test_the_pages_tables_match_the_committed_results():
@@ -109,10 +111,44 @@ def test_a_preset_region_names_its_suite_and_its_preset():
 def test_a_merged_train_report_keeps_the_other_cases_with_their_dates():
     import bench_train
 
-    previous = {"date": "2026-11-27T21:32:15+00:00",
+    previous = {"date": "2026-11-27T21:32:15+00:00", "system": {"isa": "avx512"},
                 "rows": [{"scene": "phantom", "preset": "deform3dgs"},
                          {"scene": "phantom", "preset": "surgsplat"},
+                         {"scene": "phantom", "preset": "surgsplat", "isa": "avx2"},
                          {"scene": "real", "preset": "surgsplat", "date": "2026-11-20"}]}
-    kept = bench_train.kept_rows(previous, [{"scene": "phantom", "preset": "deform3dgs"}])
-    assert kept == [{"scene": "phantom", "preset": "surgsplat", "date": "2026-11-27"},
-                    {"scene": "real", "preset": "surgsplat", "date": "2026-11-20"}]
+    kept = bench_train.kept_rows(previous, [
+        {"scene": "phantom", "preset": "deform3dgs", "isa": "avx512"},
+        {"scene": "phantom", "preset": "surgsplat", "isa": "avx2"}])
+    assert kept == [
+        {"scene": "phantom", "preset": "surgsplat", "isa": "avx512", "date": "2026-11-27"},
+        {"scene": "real", "preset": "surgsplat", "isa": "avx512", "date": "2026-11-20"}]
+
+
+def test_a_case_on_a_lesser_isa_is_compared_with_the_best_on_the_same_run():
+    def row(isa: str, wall: float, psnr: float) -> dict:
+        return {"scene": "phantom", "preset": "deform3dgs", "settings": [], "isa": isa,
+                "wall_seconds_scaled": wall, "test_psnr_tissue": psnr}
+
+    report = {"system": {"isa": "avx512"},
+              "rows": [row("avx512", 200.0, 45.65), row("avx2", 260.0, 45.61),
+                       {**row("avx2", 100.0, 40.0), "preset": "surgsplat"}]}  # no avx512 row
+    lines = isa_ratio_lines(report)
+    assert "| phantom | deform3dgs | avx2 | 260 | 200 | 1.30 | -0.04 |" in lines
+    assert not any("surgsplat" in line for line in lines)
+    assert isa_ratio_lines({"system": {"isa": "avx512"}, "rows": [row("avx512", 1.0, 1.0)]}) == []
+
+
+def test_render_table_gives_the_backward_pass_its_own_efficiency():
+    raster = {"isa": "avx2", "gaussians": 100_000, "channels": 3, "fwd_ms": 10.0,
+              "fwdbwd_ms": 30.0, "efficiency_fwd": 1.5, "efficiency_fwdbwd": 0.5}
+    step = {"isa": "avx2", "gaussians": 100_000, "channels": 3, "step_ms": 40.0}
+    # the evaluations of 30 ms of forward and backward, in the 20 ms of the backward alone
+    assert backward_efficiency(raster) == pytest.approx(0.75, rel=1e-12)
+    assert backward_efficiency(step) is None
+    report = {"cpu": "AMD EPYC", "width": 640, "height": 512, "repeats": 3,
+              "date": "2026-12-01", "rows": [raster, step],
+              "system": {"logical_cpus": 2, "torch_threads": 2, "available_isas": ["avx2"]}}
+    lines = render_table(report).splitlines()
+    assert lines[2].endswith("| efficiency fwd | efficiency bwd | efficiency fwd+bwd |")
+    assert lines[4].endswith("| 1.50 | 0.75 | 0.50 |")
+    assert lines[5].endswith("|  |  |  |")

@@ -63,6 +63,17 @@ def test_use_isa_rejects_unknown_and_unavailable_variants():
 
 
 @needs_native
+def test_variant_module_gives_any_runnable_variant_beside_the_one_in_use():
+    portable, in_use = native.available_isas()[-1], native.active_isa()
+    assert native.variant_module(portable).isa == portable
+    assert native.active_isa() == in_use
+    missing = [isa for isa in native.ISAS if native.isa_unavailable(isa) is not None]
+    if missing:
+        with pytest.raises(ValueError, match=missing[0]):
+            native.variant_module(missing[0])
+
+
+@needs_native
 def test_probe_counts_work_and_set_threads(native_isa):
     module = native.native_module()
     assert module.composite_probe(2, 8, 3) > 0.0
