@@ -3,7 +3,7 @@ benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of the one page under docs/
 that holds them, for the benchmarks bench_render, bench_train, bench_densify_split,
 bench_threads, bench_outputs, bench_auto_masks, bench_shading_depth, bench_batch,
-bench_long_clip, bench_articulation, bench_faults, bench_onnx_models, bench_poses and
+bench_long_clip, bench_articulation, bench_faults, bench_onnx_models, bench_poses, op_census and
 bench_camera_grads (each must have its region in some page), for every suite of bench_methods
 whose region `bench_methods_<suite>` a page has, and for every region
 `preset_<suite>_<preset>` (a method page: that preset's rows and targets of one bench_methods
@@ -535,6 +535,32 @@ def step_phases_table(row: dict, reference_probe: float) -> list[str]:
     return lines
 
 
+def op_census_table(report: dict) -> str:
+    """Markdown for one op_census report: per preset, a step's time and ATen calls and the
+    shares of its operators' self time by kind, then each preset's operators with the most self
+    time."""
+    system = report["system"]
+    kinds = list(report["rows"][0]["shares"])
+    lines = [
+        f"{report['cpu']} ({system['logical_cpus']} logical CPUs, ISA {system['isa']}, "
+        f"{report['threads']} threads), {report['date'][:10]}, `{report['command']}`; the "
+        f"{report['steps']} steps after the first {report['warmup']} of each preset:", "",
+        "| preset | Gaussians | ms per step | ATen calls per step | "
+        + " | ".join(kinds) + " |",
+        "|---|---|---|---|" + "---|" * len(kinds)]
+    for row in report["rows"]:
+        lines.append(f"| {row['preset']} | {row['num_gaussians']} "
+                     f"| {row['seconds_per_step'] * 1e3:.0f} | {row['aten_calls_per_step']:.0f} | "
+                     + " | ".join(f"{row['shares'][kind]:.0%}" for kind in kinds) + " |")
+    lines += ["", "The operators with the most self time (ms per step, calls per step):", "",
+              "| preset | operators |", "|---|---|"]
+    for row in report["rows"]:
+        top = ", ".join(f"`{op['operator']}` {op['ms_per_step']:.1f} ({op['calls_per_step']:.0f})"
+                        for op in row["top"])
+        lines.append(f"| {row['preset']} | {top} |")
+    return "\n".join(lines)
+
+
 def densify_split_table(report: dict) -> str:
     """Markdown for one bench_densify_split report: one row per split mode."""
     rows = report["rows"]
@@ -555,6 +581,7 @@ def densify_split_table(report: dict) -> str:
 
 
 RENDERERS = {"bench_render": render_table, "bench_train": train_table,
+             "op_census": op_census_table,
              "bench_densify_split": densify_split_table,
              "bench_threads": render_threads_table,
              "bench_outputs": outputs_table, "bench_auto_masks": auto_masks_table,

@@ -152,3 +152,21 @@ def test_render_table_gives_the_backward_pass_its_own_efficiency():
     assert lines[2].endswith("| efficiency fwd | efficiency bwd | efficiency fwd+bwd |")
     assert lines[4].endswith("| 1.50 | 0.75 | 0.50 |")
     assert lines[5].endswith("|  |  |  |")
+
+
+def test_op_census_table_gives_each_preset_its_kinds_and_top_operators():
+    from readme_tables import op_census_table
+
+    row = {"preset": "surgsplat", "num_gaussians": 41513, "seconds_per_step": 0.2914,
+           "aten_calls_per_step": 2517.0,
+           "shares": {"native kernels": 0.4, "fused Adam": 0.05, "ATen operators": 0.5,
+                      "framework": 0.05},
+           "top": [{"operator": "aten::mul", "ms_per_step": 21.45, "calls_per_step": 157.0}]}
+    report = {"cpu": "AMD EPYC", "system": {"logical_cpus": 2, "isa": "avx512"}, "threads": 2,
+              "date": "2026-12-01T10:00:00+00:00", "command": "python benchmarks/op_census.py",
+              "steps": 20, "warmup": 400, "rows": [row]}
+    lines = op_census_table(report).splitlines()
+    assert ("| preset | Gaussians | ms per step | ATen calls per step | native kernels "
+            "| fused Adam | ATen operators | framework |") in lines
+    assert "| surgsplat | 41513 | 291 | 2517 | 40% | 5% | 50% | 5% |" in lines
+    assert "| surgsplat | `aten::mul` 21.4 (157) |" in lines
