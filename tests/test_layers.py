@@ -13,7 +13,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "surgsplat"
 LAYERS = {
-    "errors": 0, "atomic": 0, "data": 1, "image": 2, "render": 2, "model": 3, "fields": 3, "losses": 3,
+    "errors": 0, "atomic": 0, "plugins": 0, "data": 1, "image": 2, "render": 2, "model": 3, "fields": 3, "losses": 3,
     "methods": 4, "train": 5, "eval": 6, "export": 6, "pipeline": 7, "cli": 8,
 }
 

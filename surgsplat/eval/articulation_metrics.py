@@ -28,7 +28,7 @@ import numpy as np
 from surgsplat.data.phantom.kinematics import TOOL_KINEMATICS_FILE
 from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.eval.metric_family import EvalOptions, MetricFamily
-from surgsplat.export.articulation import read_articulation
+from surgsplat.export.articulation import articulate, read_articulation
 from surgsplat.model.capabilities import ToolMotion
 from surgsplat.train.run import TrainedRun
 
@@ -51,15 +51,14 @@ def read_tool_kinematics(scene_root: Path) -> dict | None:
 
 class ArticulationFamily(MetricFamily):
     """The metrics of the module docstring, when the scene has true tool kinematics and the run
-    a tool field: RUN/articulation.json, estimated (`EvalOptions.estimate_articulation`) when
-    missing; an estimate that cannot be made gives a note instead."""
+    a tool field: RUN/articulation.json (written after training), estimated here without
+    writing it when missing; an estimate that cannot be made gives a note instead."""
 
     name = "articulation"
 
     def __init__(self, run: TrainedRun, options: EvalOptions):
         super().__init__(run, options)
         self.run = run
-        self.estimate = options.estimate_articulation
 
     def pooled(self) -> dict:
         run = self.run
@@ -69,7 +68,7 @@ class ArticulationFamily(MetricFamily):
         estimate = read_articulation(run.run_dir)
         if estimate is None:
             try:
-                estimate = self.estimate(run)
+                estimate = articulate(run)
             except SurgsplatError as err:
                 return {"articulation_note": str(err)}
         frames = [f.index for f in run.scene.frames

@@ -9,7 +9,6 @@ each of its metrics computes (`conventions`). A family never writes a file.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 from functools import cached_property
@@ -22,7 +21,6 @@ from torch import Tensor
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.scene import Frame
-from surgsplat.export.articulation import articulate
 from surgsplat.model.component import FrameTime
 from surgsplat.model.state import GaussianState
 from surgsplat.render.render import RenderOutput
@@ -37,9 +35,6 @@ class EvalOptions:
     """torchvision AlexNet checkpoint for LPIPS (default: env var / torch hub cache)."""
     geometry: bool = True
     """Measure geometry against gt/ meshes when the scene has them."""
-    estimate_articulation: Callable[[TrainedRun], dict] = articulate
-    """Estimates the run's tool articulation (RUN/articulation.json's content) when the run has
-    none saved; SurgsplatError when it cannot. The default writes nothing."""
     frames: Literal["test", "train"] = "test"
     """The frames scored: the held-out test frames, or the training frames (a measure of the
     fit, not of generalisation: for a scene with no held-out frame, e.g. one stereo pair)."""

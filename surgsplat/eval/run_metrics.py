@@ -1,11 +1,12 @@
 """Metrics of a trained run over its test frames (i % 8 == 1), as metrics.json holds them.
 
-`evaluate_run` renders each test frame once and composes the metric families registered in
-METRIC_FAMILIES (see metric_family.py for their contract): the render against the scene's
-pictures (render_families.py), geometry against a phantom's ground truth
-(geometry_families.py), the metrics the method's components contribute (component_metrics.py)
-and the tool's articulation (articulation_metrics.py). It writes no file: the commands that own
-metrics.json and articulation.json write them (`surgsplat.pipeline`).
+`evaluate_run` renders each test frame once and composes the registered metric families (see
+metric_family.py for their contract): surgsplat's own (BUILT_IN_FAMILIES: the render against
+the scene's pictures, render_families.py; geometry against a phantom's ground truth,
+geometry_families.py; the metrics the method's components contribute, component_metrics.py;
+the tool's articulation, articulation_metrics.py), then those that installed packages add
+through the entry-point group `surgsplat.metric_families` (`surgsplat.plugins`). It writes no
+file: the commands that own metrics.json write it (`surgsplat.pipeline`).
 """
 
 from __future__ import annotations
@@ -13,32 +14,45 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable
+from importlib.metadata import EntryPoint
 
 import numpy as np
 from torch import Tensor
 
-from surgsplat.eval.articulation_metrics import ArticulationFamily
-from surgsplat.eval.component_metrics import ComponentFamily
-from surgsplat.eval.geometry_families import (CollisionFamily, GaussianCentresFamily, MeshFamily,
-                                              NormalsFamily, SurfaceFamily)
 from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
-from surgsplat.eval.render_families import (DecompositionFamily, DepthFamily, ImageFamily,
-                                            OccludedFamily, SpecularFamily)
 from surgsplat.losses.photometric import masked_l1
 from surgsplat.model.capabilities import HeldOutPoses
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
+from surgsplat.plugins import load_extensions
 from surgsplat.train.run import TrainedRun
 
 __all__ = ["EvalOptions", "METRICS_FILE", "METRIC_FAMILIES", "evaluate_run", "frames_scored"]
 
 METRICS_FILE = "metrics.json"
 """RUN/metrics.json: `evaluate_run`'s metrics with the run's method and scene."""
-METRIC_FAMILIES: tuple[type[MetricFamily], ...] = (
-    ImageFamily, DepthFamily, SpecularFamily, OccludedFamily, ComponentFamily, SurfaceFamily,
-    MeshFamily, GaussianCentresFamily, CollisionFamily, NormalsFamily, DecompositionFamily,
-    ArticulationFamily)
-"""Every metric family, in the order their metrics appear in metrics.json."""
+FAMILY_GROUP = "surgsplat.metric_families"
+"""The entry-point group through which an installed package adds metric families (an entry
+point's value is the family's class)."""
+BUILT_IN_FAMILIES = tuple(
+    EntryPoint(name, f"surgsplat.eval.{module}:{family}", FAMILY_GROUP) for name, module, family in (
+        ("image", "render_families", "ImageFamily"), ("depth", "render_families", "DepthFamily"),
+        ("specular", "render_families", "SpecularFamily"),
+        ("occluded", "render_families", "OccludedFamily"),
+        ("diagnostics", "component_metrics", "ComponentFamily"),
+        ("geometry", "geometry_families", "SurfaceFamily"),
+        ("mesh_geometry", "geometry_families", "MeshFamily"),
+        ("gaussians_p2s", "geometry_families", "GaussianCentresFamily"),
+        ("collision_truth", "geometry_families", "CollisionFamily"),
+        ("normals", "geometry_families", "NormalsFamily"),
+        ("decomposition", "render_families", "DecompositionFamily"),
+        ("articulation", "articulation_metrics", "ArticulationFamily")))
+"""surgsplat's own metric families, each named as its `MetricFamily.name`, in the order their
+metrics appear in metrics.json."""
+METRIC_FAMILIES, UNLOADABLE_FAMILIES = load_extensions(FAMILY_GROUP, BUILT_IN_FAMILIES,
+                                                       MetricFamily)
+"""Every metric family by entry-point name (its class), the built-in ones first; and the error
+of each installed one that could not be loaded (`evaluate_run` notes them in metrics.json)."""
 DEPTH_KEYS = ("depth_rmse", "depth_rmse_occluded")
 """Metrics in the scene's depth unit, named with it when it is millimetres."""
 CONVENTIONS = {
@@ -65,7 +79,7 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     background = run.background
     if options.frames == "test":
         fit_test_poses(run, background)
-    families = [family(run, options) for family in METRIC_FAMILIES]
+    families = [family(run, options) for family in METRIC_FAMILIES.values()]
     rows: dict[str, list[float]] = {}  # metric -> its value at each frame that has it
     covered: Counter[str] = Counter()  # test frames scored, per family
     render_seconds = 0.0
@@ -95,6 +109,8 @@ def evaluate_run(run: TrainedRun, options: EvalOptions,
     name_depth_unit(metrics, run.scene.depth_unit)
     for family in families:
         metrics.update(family.unavailable())
+    if UNLOADABLE_FAMILIES:
+        metrics["metric_families_not_loaded"] = dict(UNLOADABLE_FAMILIES)
     metrics["fps"] = len(frames) / render_seconds if render_seconds > 0 else None
     metrics["train_seconds"] = run.train_seconds
     metrics["budget_seconds"] = run.config.train.budget_seconds or None  # None: trained to --iters

@@ -13,13 +13,13 @@ method, with a warning.
 
 from __future__ import annotations
 
-import warnings
 from importlib.metadata import EntryPoint, entry_points
 
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.config import MethodConfig, Preset
 from surgsplat.methods.ranges import check_config
 from surgsplat.model.camera_refine import CameraRefineConfig  # noqa: F401  (kind "camera_refine")
+from surgsplat.plugins import load_extensions
 
 ENTRY_POINT_GROUP = "surgsplat.methods"
 """The entry-point group through which an installed package adds methods."""
@@ -35,26 +35,8 @@ BUILT_IN = tuple(EntryPoint(name, f"surgsplat.methods.{name}.preset:PRESET", ENT
 
 def load_methods(installed: tuple[EntryPoint, ...]) -> tuple[dict[str, Preset], dict[str, str]]:
     """The presets of the built-in methods, then of the `installed` entry points, by name; and
-    the error of each installed one that could not be loaded. A built-in that fails to load
-    raises: it is a fault of surgsplat, not of a plug-in."""
-    presets = {entry.name: entry.load() for entry in BUILT_IN}
-    unloadable: dict[str, str] = {}
-    for entry in installed:
-        if entry.name in presets:
-            warnings.warn(f"entry point {entry.value} of group {ENTRY_POINT_GROUP} names the "
-                          f"method {entry.name!r}, which is taken; it is ignored", stacklevel=2)
-            continue
-        try:
-            preset = entry.load()
-        except Exception as err:  # a plug-in's fault: reported when the method is asked for
-            unloadable[entry.name] = f"{entry.value} failed to load: {type(err).__name__}: {err}"
-            continue
-        if not isinstance(preset, Preset):
-            unloadable[entry.name] = (f"{entry.value} is a {type(preset).__name__}, not a "
-                                      "surgsplat.methods.config.Preset")
-            continue
-        presets[entry.name] = preset
-    return presets, unloadable
+    the error of each installed one that could not be loaded (`load_extensions`)."""
+    return load_extensions(ENTRY_POINT_GROUP, BUILT_IN, Preset, installed)
 
 
 PRESETS, UNLOADABLE = load_methods(tuple(entry_points(group=ENTRY_POINT_GROUP)))

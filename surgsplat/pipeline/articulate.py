@@ -1,12 +1,15 @@
 """A run's tool articulation: estimated and written to RUN/articulation.json, the file's one
-writer (`surgsplat articulate`, after training, and before evaluation or a simulation export
-that needs it)."""
+writer (`surgsplat articulate`, after training as the product ARTICULATION of every method with
+a tool field, and before a simulation export that needs it)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from surgsplat.export.articulation import articulate, read_articulation, write_articulation
+from surgsplat.export.articulation import (ARTICULATION_FILE, articulate, read_articulation,
+                                           write_articulation)
+from surgsplat.model.capabilities import ToolMotion
+from surgsplat.pipeline.products import RunProduct
 from surgsplat.train.run import TrainedRun
 
 
@@ -30,3 +33,9 @@ def articulation_summary(articulation: dict, path: Path) -> str:
     limits = ", ".join(f"[{low:.1f}, {high:.1f}]" for low, high in articulation["limits_deg"])
     return (f"articulation of {articulation['parts']} tool Gaussians (shaft, jaws), {estimated} "
             f"frames estimated, jaw ranges {limits} deg: {path}")
+
+
+ARTICULATION = RunProduct(
+    "articulation", applies=lambda model: model.find(ToolMotion) is not None,
+    make=lambda run: articulation_summary(articulate_run(run), run.run_dir / ARTICULATION_FILE))
+"""The tool's articulation, made after training for every model with a tool field."""

@@ -3,14 +3,12 @@ eval/run_metrics.py)."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections.abc import Callable
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.errors import DataError
 from surgsplat.eval.run_metrics import METRICS_FILE, EvalOptions, evaluate_run
-from surgsplat.pipeline.articulate import articulate_run
 from surgsplat.train.run import TrainedRun
 from surgsplat.train.trainer import scene_identity
 
@@ -18,9 +16,8 @@ from surgsplat.train.trainer import scene_identity
 def evaluate(run: TrainedRun, options: EvalOptions | None = None,
              progress: Callable[[int, int], None] | None = None) -> dict:
     """The run's metrics with its method and scene, written to RUN/metrics.json;
-    `progress(done, total)` after each frame scored. A run with a tool field and no
-    RUN/articulation.json gets one, when its scene has the true kinematics to score it."""
-    options = dataclasses.replace(options or EvalOptions(), estimate_articulation=articulate_run)
+    `progress(done, total)` after each frame scored."""
+    options = options or EvalOptions()
     if not options.frames_of(run):
         raise DataError(run.scene.root, "has no test frame (frames 1, 9, 17, ...): held-out "
                                         "evaluation needs a scene of at least 2 frames; "

@@ -1,5 +1,5 @@
 """Train a method on a scene into a run folder, or resume its run: build (or load) the Trainer,
-fit it, then estimate the tool's articulation (methods with a tool field).
+fit it, then make the run's products (pipeline/products.py: e.g. the tool's articulation).
 
 `train_run` does all three; a caller that shows progress calls `start_training`, `fit` and
 `after_training` itself. Lines for the user go to a `note` callback."""
@@ -11,11 +11,9 @@ from pathlib import Path
 
 from surgsplat.data.scene import load_scene
 from surgsplat.errors import SurgsplatError
-from surgsplat.export.articulation import ARTICULATION_FILE
 from surgsplat.methods.config import MethodConfig
 from surgsplat.methods.overrides import apply_values
-from surgsplat.model.capabilities import ToolMotion
-from surgsplat.pipeline.articulate import articulate_run, articulation_summary
+from surgsplat.pipeline.products import products_of
 from surgsplat.pipeline.run_folders import check_output_folder
 from surgsplat.train.checkpoint import has_checkpoint, previous_path
 from surgsplat.train.run import load_trained_run, read_run_config, read_run_scene
@@ -86,23 +84,24 @@ def fit(trainer: Trainer, on_step: Callable[[StepStats], None] | None = None) ->
 
 
 def after_training(trainer: Trainer, data: Path | None, note: Note = quiet) -> None:
-    """Estimate and write the tool's articulation of a method with a tool field (noted in one
-    line, or why it could not be estimated)."""
-    if trainer.model.find(ToolMotion) is None:
+    """Make the products the run's components call for (`products_of`), each noted in one line,
+    or why it could not be made."""
+    products = products_of(trainer.model)
+    if not products:
         return
-    try:
-        articulation = articulate_run(load_trained_run(trainer.run_dir, data))
-    except SurgsplatError as err:
-        note(f"no articulation: {err}")
-        return
-    note(articulation_summary(articulation, trainer.run_dir / ARTICULATION_FILE))
+    run = load_trained_run(trainer.run_dir, data)
+    for product in products:
+        try:
+            note(product.make(run))
+        except SurgsplatError as err:
+            note(f"no {product.name}: {err}")
 
 
 def train_run(config: MethodConfig, data: Path | None, out: Path, resume: bool,
               iterations: int | None = None, on_step: Callable[[StepStats], None] | None = None,
               note: Note = quiet) -> Trainer:
-    """Build (or resume) a Trainer, run it to the end, articulate the tool; see the functions
-    it calls."""
+    """Build (or resume) a Trainer, run it to the end, make its products; see the functions it
+    calls."""
     trainer = start_training(config, data, out, resume, iterations, note)
     fit(trainer, on_step)
     after_training(trainer, data, note)

@@ -67,8 +67,17 @@ def test_methods_names_a_method_that_failed_to_load(cli, monkeypatch):
     assert "not loaded: method 'broken': pkg.mod:PRESET failed to load" in listed.stdout
 
 
+def test_the_plugin_adds_a_metric_family_and_a_product(plugin_on_path):
+    from importlib.metadata import entry_points
+
+    from surgsplat.eval.run_metrics import FAMILY_GROUP
+    from surgsplat.pipeline.products import PRODUCT_GROUP
+    assert {e.name for e in entry_points(group=FAMILY_GROUP)} == {"sheen"}
+    assert {e.name for e in entry_points(group=PRODUCT_GROUP)} == {"sheen_quartiles"}
+
+
 def test_a_taken_name_keeps_the_built_in_method(plugin_on_path):
-    with pytest.warns(UserWarning, match="names the method 'deform3dgs', which is taken"):
+    with pytest.warns(UserWarning, match="names 'deform3dgs', which is taken"):
         presets, _ = load_methods((entry("deform3dgs", "toy_splat_method.method:PRESET"),))
     assert presets["deform3dgs"] is registry.PRESETS["deform3dgs"]
 
@@ -97,7 +106,11 @@ def test_every_command_works_on_the_installed_method(cli, small_phantom, tmp_pat
     assert config["components"]["sheen"]["kind"] == "toy_sheen"
     log = [json.loads(line) for line in (run / "train_log.jsonl").read_text().splitlines()]
     assert log and all("sheen" in entry["terms"] for entry in log)
-    assert json.loads((run / "metrics.json").read_text())["psnr_tissue"] > 15
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["psnr_tissue"] > 15
+    assert 0.0 < metrics["sheen_tissue"] < 1.0 and metrics["frames_covered"]["sheen"] >= 1
+    assert "metric_families_not_loaded" not in metrics
+    assert len(json.loads((run / "sheen.json").read_text())["quartiles"]) == 3  # its product
     assert (run / "videos" / "sheen.mp4").stat().st_size > 0
     assert len(list((run / "export" / "ply").glob("*.ply"))) == 1
     without = cli("--threads", "1", "eval", str(run), process=True)

@@ -38,8 +38,14 @@ class SheenConfig(ComponentConfig, kind="toy_sheen"):
         return Sheen(self)
 
 
+class SheenSource:
+    """The capability of rendering the channel "sheen" (what the toy's metric family and
+    product look for)."""
+
+
 class Sheen(Component):
     phase = Phase.LOSS
+    provides = (SheenSource,)
 
     def __init__(self, config: SheenConfig):
         super().__init__()
