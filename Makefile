@@ -4,7 +4,8 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.surgsplat-installed
-NATIVE_SOURCES := $(wildcard csrc/*.cpp csrc/*.h csrc/*/*.cpp csrc/*/*.h) CMakeLists.txt pyproject.toml
+NATIVE_SOURCES := $(wildcard csrc/*.cpp csrc/*.h csrc/*/*.cpp csrc/*/*.h surgsplat/methods/*/csrc/*) \
+                  CMakeLists.txt pyproject.toml
 
 .PHONY: demo test test-fast docs install clean aarch64-sysroot x86-64-v4-guest
 

@@ -7,6 +7,7 @@
 
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 template <typename T>
 using In = nanobind::ndarray<const T, nanobind::c_contig, nanobind::device::cpu>;
@@ -21,11 +22,15 @@ void expect_size(const A& array, size_t size, const char* name) {
                                     " elements, got " + std::to_string(array.size()));
 }
 
-void bind_rasterize(nanobind::module_& m);
-void bind_hexplane(nanobind::module_& m);
-void bind_blur(nanobind::module_& m);
-void bind_project(nanobind::module_& m);
-void bind_probe(nanobind::module_& m);
-void bind_gaussian_basis(nanobind::module_& m);
-void bind_sh(nanobind::module_& m);
-void bind_normals(nanobind::module_& m);
+// Each op folder binds its functions through one OpBinding object at namespace scope
+// (`static const OpBinding binding(&bind_my_op);` in its bindings.cpp), in csrc/ or in a method
+// package's csrc/ (surgsplat/methods/<name>/csrc/): the module binds every op compiled into it
+// (CMakeLists.txt) without naming any.
+using BindFunction = void (*)(nanobind::module_&);
+
+// The bind functions registered so far, in the order their objects were initialised.
+std::vector<BindFunction>& op_bindings();
+
+struct OpBinding {
+    explicit OpBinding(BindFunction bind) { op_bindings().push_back(bind); }
+};

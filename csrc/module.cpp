@@ -1,7 +1,8 @@
-// One ISA variant of the native Python module, `_native_<isa>`: each op folder of csrc/ registers
-// its functions here. CMakeLists.txt compiles all of csrc/ once per target ISA and defines
-// SURGSPLAT_ISA (the variant's name) and SURGSPLAT_MODULE (its module name); which variant runs is
-// chosen in surgsplat/render/native.py from cpu_isas() of the portable variant.
+// One ISA variant of the native Python module, `_native_<isa>`: each op folder (of csrc/ and of
+// the method packages' csrc/) registers its bind function (bindings.h, OpBinding), called here.
+// CMakeLists.txt compiles all of those sources once per target ISA and defines SURGSPLAT_ISA (the
+// variant's name) and SURGSPLAT_MODULE (its module name); which variant runs is chosen in
+// surgsplat/render/native.py from cpu_isas() of the portable variant.
 #include <omp.h>
 
 #include <nanobind/stl/string.h>
@@ -22,6 +23,11 @@
 #endif
 
 namespace nb = nanobind;
+
+std::vector<BindFunction>& op_bindings() {
+    static std::vector<BindFunction> bindings;  // built on first use: safe from any initialiser
+    return bindings;
+}
 
 namespace {
 
@@ -83,12 +89,5 @@ SURGSPLAT_NB_MODULE(SURGSPLAT_MODULE, m) {
           "flushing subnormals to zero).");
     m.def("flush_subnormals", &flush_subnormals,
           "Flush subnormal floats to zero in the calling thread and its OpenMP team, for good.");
-    bind_rasterize(m);
-    bind_hexplane(m);
-    bind_blur(m);
-    bind_project(m);
-    bind_probe(m);
-    bind_gaussian_basis(m);
-    bind_sh(m);
-    bind_normals(m);
+    for (BindFunction bind : op_bindings()) bind(m);
 }

@@ -2,8 +2,8 @@
 
 Papers and their presets belong to their method packages (surgsplat/methods/<name>/) and to the
 method pages of the documentation; the core says what a thing is, not whose it is. The scan
-covers every Python file of the package outside surgsplat/methods/ and the native kernels in
-csrc/ but csrc/normals/, the native op of one method that the build keeps beside the others.
+covers every Python file of the package outside surgsplat/methods/ and every native source in
+csrc/ (a method's own native op lives in its package, surgsplat/methods/<name>/csrc/).
 A command that needs the default method's name reads `surgsplat.methods.registry.DEFAULT_PRESET`.
 The package's own name, which is also the name of its combined preset, cannot be scanned for.
 """
@@ -17,7 +17,6 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "surgsplat"
 METHODS = PACKAGE / "methods"
 NATIVE = ROOT / "csrc"
-NATIVE_OF_ONE_METHOD = NATIVE / "normals"
 NATIVE_SUFFIXES = (".cpp", ".h")
 
 PAPER_NAMES = ("endo-?gsg", "physio-?splat", "endo-?planar", "lumi-?state", "drawer",
@@ -38,11 +37,10 @@ def hits(paths: list[Path]) -> list[str]:
 
 
 def core_files() -> list[Path]:
-    """The Python files of the package outside surgsplat/methods/, and the native sources
-    outside csrc/normals/."""
+    """The Python files of the package outside surgsplat/methods/, and the native sources of
+    csrc/."""
     python = [path for path in sorted(PACKAGE.rglob("*.py")) if not path.is_relative_to(METHODS)]
-    native = [path for path in sorted(NATIVE.rglob("*")) if path.suffix in NATIVE_SUFFIXES
-              and not path.is_relative_to(NATIVE_OF_ONE_METHOD)]
+    native = [path for path in sorted(NATIVE.rglob("*")) if path.suffix in NATIVE_SUFFIXES]
     return python + native
 
 

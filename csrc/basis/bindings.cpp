@@ -54,7 +54,7 @@ void backward(In<float> weights, In<float> centres, In<float> log_widths, float 
 
 }  // namespace
 
-void bind_gaussian_basis(nb::module_& m) {
+static void bind_gaussian_basis(nb::module_& m) {
     m.def("gaussian_basis_forward", &forward, nb::arg("weights"), nb::arg("centres"),
           nb::arg("log_widths"), nb::arg("t"), nb::arg("out"),
           "Deformation channels out [N, D] = sum_b weights [N, D, B] exp(-z^2 / 2), "
@@ -64,3 +64,5 @@ void bind_gaussian_basis(nb::module_& m) {
           nb::arg("grad_centres"), nb::arg("grad_log_widths"),
           "Gradients of gaussian_basis_forward given grad_out [N, D], all overwritten.");
 }
+
+static const OpBinding binding(&bind_gaussian_basis);

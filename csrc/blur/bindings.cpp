@@ -93,7 +93,7 @@ void ssim_backward(In<float> pred, In<float> gt, In<float> moments, In<float> ta
 
 }  // namespace
 
-void bind_blur(nb::module_& m) {
+static void bind_blur(nb::module_& m) {
     m.def("blur", &blur, nb::arg("planes"), nb::arg("taps"), nb::arg("out"),
           "Blur each plane [P, H, W] with the symmetric 1D kernel `taps` along rows then "
           "columns, zero padding, into `out` [P, H, W]. Self-adjoint: also its own backward.");
@@ -113,3 +113,5 @@ void bind_blur(nb::module_& m) {
           "whose gradient with respect to the map is grad_map [H, W, C], or if None "
           "grad_score * weights (the backward of the score), with the forward's image_mask.");
 }
+
+static const OpBinding binding(&bind_blur);

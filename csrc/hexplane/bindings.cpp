@@ -73,7 +73,7 @@ void backward(In<float> coords, std::vector<In<float>> planes, In<float> grad_ou
 
 }  // namespace
 
-void bind_hexplane(nb::module_& m) {
+static void bind_hexplane(nb::module_& m) {
     m.def("hexplane_forward", &forward, nb::arg("coords"), nb::arg("planes"), nb::arg("out"),
           "Per scale, the product of the six bilinearly sampled planes (align_corners=True, "
           "border clamped), scales concatenated: coords [N, 4] -> out [N, scales * F].");
@@ -82,3 +82,5 @@ void bind_hexplane(nb::module_& m) {
           "Gradients of hexplane_forward given grad_out [N, scales * F]: grad_coords [N, 3] "
           "(x, y, z; time gets none) and every plane's gradient, both overwritten.");
 }
+
+static const OpBinding binding(&bind_hexplane);

@@ -19,9 +19,11 @@ double probe(int64_t tiles, int64_t gaussians, int64_t channels) {
 
 }  // namespace
 
-void bind_probe(nb::module_& m) {
+static void bind_probe(nb::module_& m) {
     m.def("composite_probe", &probe, nb::arg("tiles"), nb::arg("gaussians"), nb::arg("channels"),
           "Limit probe: composites `gaussians` Gaussians over every pixel of `tiles` 16x16 "
           "tiles with the kernels' arithmetic and nothing else (tiles * gaussians * 256 "
           "evaluations); returns a checksum.");
 }
+
+static const OpBinding binding(&bind_probe);

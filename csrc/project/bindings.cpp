@@ -94,9 +94,11 @@ void backward(In<float> means, In<float> scales, In<float> quats, In<float> worl
 
 }  // namespace
 
-void bind_project(nb::module_& m) {
+static void bind_project(nb::module_& m) {
     m.def("project_forward", &forward, "EWA projection of 3D Gaussians (see project.py).");
     m.def("project_backward", &backward,
           "Gradients of the projection's inputs: the Gaussians', world_to_camera [4, 4] and the "
           "intrinsics (fx, fy, cx, cy).");
 }
+
+static const OpBinding binding(&bind_project);

@@ -79,7 +79,7 @@ void backward(const TileBins& bins, In<float> means2d, In<float> conics, In<floa
 
 }  // namespace
 
-void bind_rasterize(nb::module_& m) {
+static void bind_rasterize(nb::module_& m) {
     nb::class_<TileBins>(m, "TileBins", "Depth-sorted Gaussian lists of the 16x16 tiles.")
         .def_prop_ro("num_overlaps", [](const TileBins& b) { return b.ranks.size(); },
                      "Total (tile, Gaussian) pairs: the tiles each Gaussian's alpha >= 1/255 "
@@ -93,3 +93,5 @@ void bind_rasterize(nb::module_& m) {
           "gated) and gate_members [N] uint8 keep the members' gradients from the gated pixels "
           "(both empty: no gate).");
 }
+
+static const OpBinding binding(&bind_rasterize);

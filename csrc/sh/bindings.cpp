@@ -48,7 +48,7 @@ void backward(In<float> coeffs, In<float> means, In<float> centre, int degree,
 
 }  // namespace
 
-void bind_sh(nb::module_& m) {
+static void bind_sh(nb::module_& m) {
     m.def("sh_forward", &forward, nb::arg("coeffs"), nb::arg("means"), nb::arg("centre"),
           nb::arg("degree"), nb::arg("rgb"),
           "Colour rgb [N, 3] of SH coefficients [N, K, 3] seen from centre [3] (see sh.py).");
@@ -58,3 +58,5 @@ void bind_sh(nb::module_& m) {
           "Gradients of sh_forward given grad_rgb [N, 3]: grad_coeffs [N, K, 3] and "
           "grad_means [N, 3], both overwritten.");
 }
+
+static const OpBinding binding(&bind_sh);

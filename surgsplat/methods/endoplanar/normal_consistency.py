@@ -7,9 +7,9 @@ from the camera) and the rendered normal N(p), times a weight w(p). It is summed
 pixels: those of a mask whose depth normal is valid (interior pixels whose own and four
 neighbours' depths are > 0, with a non-degenerate cross product).
 
-Two implementations with one contract: the fused native kernels of csrc/normals (float32 CPU
-maps; one pass forward, two backward, where the PyTorch ops take some forty passes over the
-image) and `normal_consistency_reference`, composed of PyTorch ops and differentiated by
+Two implementations with one contract: the fused native kernels of this package's csrc/
+(float32 CPU maps; one pass forward, two backward, where the PyTorch ops take some forty passes
+over the image) and `normal_consistency_reference`, composed of PyTorch ops and differentiated by
 autograd (any dtype, and the only one that gives K a gradient).
 """
 

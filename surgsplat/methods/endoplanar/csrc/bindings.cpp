@@ -8,7 +8,7 @@
 #include <utility>
 
 #include "bindings.h"
-#include "normals/normals.h"
+#include "normals.h"
 
 namespace nb = nanobind;
 
@@ -58,7 +58,7 @@ void backward(In<float> depth, In<float> normals, In<float> ray_x, In<float> ray
 
 }  // namespace
 
-void bind_normals(nb::module_& m) {
+static void bind_normals(nb::module_& m) {
     m.def("normal_consistency_forward", &forward, nb::arg("depth"), nb::arg("normals"),
           nb::arg("ray_x"), nb::arg("ray_y"), nb::arg("mask"), nb::arg("weights").none(),
           "(sum, count) of EndoPlanar's normal consistency between the rendered normals "
@@ -71,3 +71,5 @@ void bind_normals(nb::module_& m) {
           "Gradients of grad_sum times the forward's sum with respect to depth [H, W] and "
           "normals [H, W, 3], each overwritten unless None.");
 }
+
+static const OpBinding binding(&bind_normals);

@@ -1,5 +1,5 @@
 // Normal consistency; see normals.h.
-#include "normals/normals.h"
+#include "normals.h"
 
 #include <algorithm>
 #include <cmath>
