@@ -13,9 +13,10 @@
 // are constant per pixel. So a pixel carries two values back to front, its transmittance and
 // this dot product, instead of C + 2 (the colour and alpha behind it).
 //
-// A gate (gate_pixels, gate_members) keeps the gradients of the member Gaussians from the gated
-// pixels: there, a member's own terms (w_i dL/dC and alpha_i dL/dalpha_i) are dropped, while
-// the recursion, and so every other Gaussian's gradient, is unchanged.
+// Gradient weights (pixel_weights, weighted_members) scale the member Gaussians' gradients per
+// pixel: at pixel p, a member's own terms (w_i dL/dC and alpha_i dL/dalpha_i) are multiplied by
+// pixel_weights[p] (0 drops them, 1 keeps them whole), while the recursion, and so every other
+// Gaussian's gradient, is unchanged.
 #include <algorithm>
 #include <memory>
 
@@ -40,7 +41,7 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                         const float* grad_image, const float* grad_alpha,
                         float* grad_means2d, float* grad_conics, float* grad_opacities,
                         float* grad_features, float* abs_grad_means2d,
-                        const int32_t* gate_pixels, const uint8_t* gate_members) {
+                        const float* pixel_weights, const uint8_t* weighted_members) {
     const int tiles = bins.tiles_x * bins.tiles_y;
     const int64_t n = bins.num_gaussians, channels = bins.channels;
     const int64_t drawn = static_cast<int64_t>(bins.splats.size());
@@ -59,7 +60,7 @@ void rasterize_backward(const TileBins& bins, int width, int height,
         std::vector<BandF> grad_f(channels);
         BandF trans[kBands], behind[kBands], grad_a[kBands];
         BandI last[kBands];
-        BandI open[kBands];  // lanes of pixels that are not gated (all ones), the others 0
+        BandF member_weight[kBands];  // per lane, the weight of a member's gradient there
         int32_t band_last[kBands];  // per band, the largest last entry: later Gaussians skip it
         // interleaved static schedule: the same tiles go to the same thread on every call, so the
         // per-thread sums, and the gradients, are reproducible
@@ -73,6 +74,8 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                 prefetch_tile_pixels(transmittance, 1, width, height, next_x, next_y);
                 prefetch_tile_pixels(last_entry, 1, width, height, next_x, next_y);
                 prefetch_tile_pixels(grad_alpha, 1, width, height, next_x, next_y);
+                if (pixel_weights != nullptr)
+                    prefetch_tile_pixels(pixel_weights, 1, width, height, next_x, next_y);
                 prefetch_tile_pixels(grad_image, channels, width, height, next_x, next_y);
             }
             // the tile's pixels; those outside the image composite nothing and get no gradient
@@ -83,9 +86,10 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                 trans[band] = load_band(transmittance, width, px0, y0, in_columns, in_rows, 1.0f);
                 last[band] = load_band(last_entry, width, px0, y0, in_columns, in_rows, start);
                 grad_a[band] = load_band(grad_alpha, width, px0, y0, in_columns, in_rows, 0.0f);
-                open[band] = gate_pixels == nullptr
-                                 ? BandI::all(-1)
-                                 : ~load_band(gate_pixels, width, px0, y0, in_columns, in_rows, 0);
+                member_weight[band] =
+                    pixel_weights == nullptr
+                        ? BandF::all(1.0f)
+                        : load_band(pixel_weights, width, px0, y0, in_columns, in_rows, 1.0f);
                 behind[band] = BandF::all(0.0f);
                 for (int64_t ch = 0; ch < channels; ++ch) {
                     BandF& grad = grad_in[ch * kBands + band];
@@ -114,7 +118,8 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                 const SplatInTile s(bins.splats[rank], bins.spans[k], px0, py0, columns, rows);
                 const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;
                 const float* feature = bins.features.data() + rank * channels;
-                const bool gated = gate_members != nullptr && gate_members[bins.splats[rank].id];
+                const bool weighted =
+                    weighted_members != nullptr && weighted_members[bins.splats[rank].id];
                 s.with_reached_registers([&](auto first_register, auto registers) {
                     constexpr int R0 = decltype(first_register)::value;
                     constexpr int N = decltype(registers)::value;
@@ -140,10 +145,10 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                         const RowPart<N> t_before =
                             select(in, t_after * reciprocal(1.0f - alpha), t_after);
                         const RowPart<N> weight = alpha * t_before;
-                        // the lanes whose pixel passes this Gaussian its own gradient
-                        const RowPartI<N> learns =
-                            gated ? part<R0, N>(open[band]) : RowPartI<N>::all(-1);
-                        const RowPart<N> own_weight = select(learns, weight, RowPart<N>{});
+                        // the weight of this Gaussian's own gradient at each lane's pixel
+                        const RowPart<N> learns =
+                            weighted ? part<R0, N>(member_weight[band]) : RowPart<N>::all(1.0f);
+                        const RowPart<N> own_weight = weight * learns;
                         // first = f . dL/dC + dL/dA: this Gaussian's own term of dL/dalpha
                         RowPart<N> first = part<R0, N>(grad_a[band]);
                         for (int64_t ch = 0; ch < channels; ++ch) {
@@ -159,8 +164,8 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                         set_part<R0, N>(trans[band], t_before);
                         // alpha = o G with G = exp(-q/2), unless clamped at kAlphaMax (then no
                         // gradient)
-                        const RowPart<N> ad = select(in & learns & (alpha < kAlphaMax),
-                                                     alpha * d_alpha, RowPart<N>{});
+                        const RowPart<N> ad = select(in & (alpha < kAlphaMax),
+                                                     alpha * d_alpha * learns, RowPart<N>{});
                         sum_ad += ad;
                         sum_ad_dy += ad * dy;
                         sum_ad_dy2 += ad * (dy * dy);

@@ -50,8 +50,8 @@ void backward(const TileBins& bins, In<float> means2d, In<float> conics, In<floa
               In<float> features, int width, int height, In<float> transmittance,
               In<int32_t> last_entry, In<float> grad_image, In<float> grad_alpha,
               Out<float> grad_means2d, Out<float> grad_conics, Out<float> grad_opacities,
-              Out<float> grad_features, Out<float> abs_grad_means2d, In<int32_t> gate_pixels,
-              In<uint8_t> gate_members) {
+              Out<float> grad_features, Out<float> abs_grad_means2d, In<float> pixel_weights,
+              In<uint8_t> weighted_members) {
     const Screen s = check_inputs(means2d, conics, opacities, features);
     const size_t pixels = static_cast<size_t>(width) * height;
     if (static_cast<size_t>(bins.num_gaussians) != s.n ||
@@ -66,15 +66,15 @@ void backward(const TileBins& bins, In<float> means2d, In<float> conics, In<floa
     expect_size(grad_opacities, s.n, "grad_opacities");
     expect_size(grad_features, s.n * s.channels, "grad_features");
     expect_size(abs_grad_means2d, 2 * s.n, "abs_grad_means2d");
-    const bool gated = gate_members.size() > 0;  // no gate: both empty
-    expect_size(gate_pixels, gated ? pixels : 0, "gate_pixels");
-    expect_size(gate_members, gated ? s.n : 0, "gate_members");
+    const bool weighted = weighted_members.size() > 0;  // no weights: both empty
+    expect_size(pixel_weights, weighted ? pixels : 0, "pixel_weights");
+    expect_size(weighted_members, weighted ? s.n : 0, "weighted_members");
     nb::gil_scoped_release unlocked;
     surgsplat::rasterize_backward(
         bins, width, height, transmittance.data(), last_entry.data(), grad_image.data(),
         grad_alpha.data(), grad_means2d.data(), grad_conics.data(), grad_opacities.data(),
-        grad_features.data(), abs_grad_means2d.data(), gated ? gate_pixels.data() : nullptr,
-        gated ? gate_members.data() : nullptr);
+        grad_features.data(), abs_grad_means2d.data(),
+        weighted ? pixel_weights.data() : nullptr, weighted ? weighted_members.data() : nullptr);
 }
 
 }  // namespace
@@ -89,9 +89,9 @@ static void bind_rasterize(nb::module_& m) {
         .def_prop_ro("tiles", [](const TileBins& b) { return b.tiles_x * b.tiles_y; });
     m.def("rasterize_forward", &forward, "Bin, sort and composite; returns the tile bins.");
     m.def("rasterize_backward", &backward,
-          "Gradients of the compositing, given its tile bins; gate_pixels [H, W] int32 (-1 = "
-          "gated) and gate_members [N] uint8 keep the members' gradients from the gated pixels "
-          "(both empty: no gate).");
+          "Gradients of the compositing, given its tile bins; pixel_weights [H, W] float32 "
+          "scale, per pixel, the gradients of the Gaussians with weighted_members [N] uint8 != 0 "
+          "(both empty: no weights).");
 }
 
 static const OpBinding binding(&bind_rasterize);

@@ -282,14 +282,14 @@ void rasterize_forward(const TileBins& bins, int width, int height, float* image
                        float* transmittance, int32_t* last_entry);
 
 // Gradients [N, ...] of the inputs' means2d, conics, opacities and features (added to
-// grad_features), and the per-Gaussian sum of |dL/dmean2d|, from the forward's outputs. With a
-// gate (both non-null), the Gaussians with gate_members [N] != 0 get no gradient from the pixels
-// with gate_pixels [H, W] all ones (-1; 0 elsewhere).
+// grad_features), and the per-Gaussian sum of |dL/dmean2d|, from the forward's outputs. With
+// gradient weights (both non-null), the gradient a Gaussian with weighted_members [N] != 0 gets
+// from pixel p is scaled by pixel_weights [H, W] at p.
 void rasterize_backward(const TileBins& bins, int width, int height,
                         const float* transmittance, const int32_t* last_entry,
                         const float* grad_image, const float* grad_alpha,
                         float* grad_means2d, float* grad_conics, float* grad_opacities,
                         float* grad_features, float* abs_grad_means2d,
-                        const int32_t* gate_pixels, const uint8_t* gate_members);
+                        const float* pixel_weights, const uint8_t* weighted_members);
 
 }  // namespace surgsplat

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from surgsplat.model.gaussians import GaussianModel
     from surgsplat.model.physics import ToolProxy
     from surgsplat.model.state import GaussianState
-    from surgsplat.render.rasterize import PixelGate
+    from surgsplat.render.pixel_weights import PixelWeights
 
 Offered = TypeVar("Offered")
 
@@ -105,12 +105,13 @@ class PointSource(Protocol):
         `context.rows_added_by(self)`. None adds none."""
 
 
-class GradientGate(Protocol):
-    """Which Gaussians a render keeps from which pixels' gradients (e.g. tissue from the pixels
-    that show the tool in front of it). At most one component of a model gates."""
+class GradientWeighting(Protocol):
+    """How much some Gaussians learn from each pixel of a render (e.g. tissue nothing from the
+    pixels that show the tool in front of it). At most one component of a model weights."""
 
-    def pixel_gate(self, gaussians: GaussianModel, when: FrameTime) -> PixelGate | None:
-        """The gate of a render at `when`, or None to gate nothing in it."""
+    def gradient_weights(self, gaussians: GaussianModel, when: FrameTime) -> PixelWeights | None:
+        """The per-pixel weights of some Gaussians' gradients in a render at `when`
+        (`PixelWeights`), or None to weight none."""
 
 
 class CanonicalPlacement(Protocol):

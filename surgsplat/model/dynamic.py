@@ -13,7 +13,7 @@ from torch import Tensor, nn
 from surgsplat.data.scene import Camera
 from surgsplat.errors import SurgsplatError
 from surgsplat.model.capabilities import (CameraCorrection, CanonicalPlacement,
-                                          DensifyWeighting, GradientGate, OpacityFactor)
+                                          DensifyWeighting, GradientWeighting, OpacityFactor)
 from surgsplat.model.channels import BASE_CHANNELS, ChannelDescriptor
 from surgsplat.model.component import (Capability, Component, Diagnostics, FrameTime, ParamGroup,
                                        RenderContext, provider, providers)
@@ -76,7 +76,7 @@ class SplatModel(nn.Module):
                absgrad: Tensor | None = None) -> tuple[RenderOutput, GaussianState]:
         """The view of `camera` at `when`, with every component's channels and derived maps,
         and the Gaussians that were rendered (after every component's `before_render`; their
-        gradients filtered by the one component's `GradientGate`, if any). `camera` is
+        gradients weighted per pixel by the one component's `GradientWeighting`, if any). `camera` is
         rendered as given: a frame's camera goes through `camera_at` first (`render_frame` and
         the Trainer do so)."""
         self.before_render(when)
@@ -88,13 +88,13 @@ class SplatModel(nn.Module):
                     raise SurgsplatError(f"component {name!r} renders channel {key!r}, which "
                                          "another component already renders")
                 channels[key] = value
-        gating = self.find(GradientGate)
-        gate = None if gating is None else gating.pixel_gate(self.gaussians, when)
+        weighting = self.find(GradientWeighting)
+        weights = None if weighting is None else weighting.gradient_weights(self.gaussians, when)
         output = render(state.means, state.scales, state.quats, state.opacities, state.sh,
                         camera.K, camera.width, camera.height,
                         world_to_camera=camera.world_to_camera, sh_degree=state.sh_degree,
                         extras=channels, background=background, absgrad=absgrad,
-                        gate=gate)
+                        gradient_weights=weights)
         for component in self.components.values():
             component.finish_render(output, camera, when)
         return output, state

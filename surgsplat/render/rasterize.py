@@ -7,25 +7,12 @@ when it is built.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import Tensor
 
 from surgsplat.render.native import Backend, dense_grad, native_module, resolve_backend
+from surgsplat.render.pixel_weights import PixelWeights, check_pixel_weights
 from surgsplat.render.reference import rasterize_reference
-
-
-@dataclass(frozen=True)
-class PixelGate:
-    """A gradient filter of one rasterisation: the Gaussians `members` [N] bool get no gradient
-    from the pixels `pixels` [H, W] bool. Their values still composite there, and every other
-    Gaussian's gradient is unchanged: the image's derivative with respect to a member's own
-    inputs is taken as 0 at those pixels (e.g. tissue learns nothing from the pixels that show
-    the tool in front of it)."""
-
-    pixels: Tensor
-    members: Tensor
 
 
 class _NativeRasterize(torch.autograd.Function):
@@ -33,7 +20,7 @@ class _NativeRasterize(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means2d, conics, opacities, features, depths, radii, background, width,
-                height, absgrad, gate):
+                height, absgrad, gradient_weights):
         native = native_module()
         inputs = [t.detach().contiguous() for t in (means2d, conics, opacities, features)]
         channels = features.shape[1]
@@ -47,10 +34,11 @@ class _NativeRasterize(torch.autograd.Function):
             radii.contiguous().numpy(), background.detach().contiguous().numpy(), width, height,
             image.numpy(), transmittance.numpy(), last_entry.numpy())
         ctx.bins, ctx.size, ctx.absgrad = bins, (width, height), absgrad
-        ctx.gate = (torch.empty(0, dtype=torch.int32), torch.empty(0, dtype=torch.uint8))
-        if gate is not None:  # the kernel's form: -1 (all bits) at gated pixels, 1 byte members
-            ctx.gate = (-gate.pixels.to(torch.int32).contiguous(),
-                        gate.members.to(torch.uint8).contiguous())
+        ctx.gradient_weights = (torch.empty(0), torch.empty(0, dtype=torch.uint8))
+        if gradient_weights is not None:  # the kernel's form: float32 weights, 1-byte members
+            ctx.gradient_weights = (
+                gradient_weights.weights.detach().to(torch.float32).contiguous(),
+                gradient_weights.members.to(torch.uint8).contiguous())
         ctx.save_for_backward(*inputs, transmittance, last_entry)
         return image, 1.0 - transmittance
 
@@ -67,7 +55,7 @@ class _NativeRasterize(torch.autograd.Function):
             width, height, transmittance.numpy(), last_entry.numpy(),
             dense_grad(grad_image, (height, width, features.shape[1])).numpy(),
             dense_grad(grad_alpha, (height, width)).numpy(), *(g.numpy() for g in grads),
-            abs_grad.numpy(), *(g.numpy() for g in ctx.gate))
+            abs_grad.numpy(), *(g.numpy() for g in ctx.gradient_weights))
         if ctx.absgrad is not None:
             ctx.absgrad += abs_grad.norm(dim=1)
         return (*grads, None, None, None, None, None, None, None)
@@ -89,7 +77,8 @@ def check_finite(**tensors: Tensor) -> None:
 def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
               depths: Tensor, radii: Tensor, width: int, height: int,
               absgrad: Tensor | None = None, background: Tensor | None = None,
-              gate: PixelGate | None = None, backend: Backend = "auto") -> tuple[Tensor, Tensor]:
+              gradient_weights: PixelWeights | None = None,
+              backend: Backend = "auto") -> tuple[Tensor, Tensor]:
     """Alpha-composite Gaussians front to back into (image [H,W,C], alpha [H,W]).
 
     means2d [N,2] pixels, conics [N,3] (a, b, c), opacities [N] in [0,1], features [N,C] (any C),
@@ -98,6 +87,7 @@ def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tens
     (data: it gets no gradient).
     absgrad [N], when given, receives during backward the per-Gaussian sum over pixels of the
     absolute screen-space gradient of the mean (the norm of the summed |dL/dx|, |dL/dy|).
+    gradient_weights, when given, scales some Gaussians' gradients per pixel (PixelWeights).
     Raises ValueError on NaN/Inf inputs (project() keeps culled Gaussians finite).
     """
     if features.ndim != 2 or features.shape[0] != means2d.shape[0]:
@@ -108,16 +98,13 @@ def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tens
                          f"got {tuple(background.shape)}")
     if width < 1 or height < 1:
         raise ValueError(f"rasterize: image size must be positive, got {width}x{height}")
-    if gate is not None and (gate.pixels.shape != (height, width)
-                             or gate.members.shape != means2d.shape[:1]):
-        raise ValueError(f"rasterize: a gate's pixels must be [H, W] = [{height}, {width}] and "
-                         f"its members [N] = [{means2d.shape[0]}], got "
-                         f"{tuple(gate.pixels.shape)} and {tuple(gate.members.shape)}")
+    if gradient_weights is not None:
+        check_pixel_weights(gradient_weights, width, height, means2d.shape[0])
     check_finite(means2d=means2d.detach(), conics=conics.detach(), opacities=opacities.detach(),
                  features=features.detach(), depths=depths.detach())
     if resolve_backend("rasterize", backend, [means2d, conics, opacities, features]) == "reference":
         return rasterize_reference(means2d, conics, opacities, features, depths, radii,
-                                   width, height, absgrad, background, gate)
+                                   width, height, absgrad, background, gradient_weights)
     radii = radii.to(torch.int32)
     return _NativeRasterize.apply(means2d, conics, opacities, features, depths, radii,
-                                  background, width, height, absgrad, gate)
+                                  background, width, height, absgrad, gradient_weights)

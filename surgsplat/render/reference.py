@@ -11,13 +11,10 @@ alpha_i T_i f_i if T_i (1 - alpha_i) >= 1e-4, and compositing stops at the first
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import torch
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from surgsplat.render.rasterize import PixelGate
+from surgsplat.render.pixel_weights import PixelWeights
 
 ALPHA_MAX = 0.99
 ALPHA_MIN = 1.0 / 255.0
@@ -34,7 +31,7 @@ def pixel_centres(width: int, height: int, dtype: torch.dtype) -> Tensor:
 def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
                         depths: Tensor, radii: Tensor, width: int, height: int,
                         absgrad: Tensor | None = None, background: Tensor | None = None,
-                        gate: PixelGate | None = None) -> tuple[Tensor, Tensor]:
+                        gradient_weights: PixelWeights | None = None) -> tuple[Tensor, Tensor]:
     """Composite Gaussians front to back -> (image [H,W,C], alpha [H,W]).
 
     means2d [N,2], conics [N,3], opacities [N], features [N,C], depths [N], radii [N] (0 = culled).
@@ -42,10 +39,11 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, feat
     norm of the 2-vector) added during backward, the densification signal.
     background [C], when given, is added behind the Gaussians: image + (1 - alpha) background
     (data, as in the native kernel: it gets no gradient).
-    gate: the members' alpha and features enter the gated pixels detached (rasterize.PixelGate).
+    gradient_weights: at pixel p, a member's alpha and features enter as x.detach() + w_p (x -
+    x.detach()): their value, with w_p times their gradient (pixel_weights.PixelWeights).
     """
     image, alpha = _composite(means2d, conics, opacities, features, depths, radii, width, height,
-                              absgrad, gate)
+                              absgrad, gradient_weights)
     if background is not None:
         image = image + (1.0 - alpha)[..., None] * background.detach().to(image)
     return image, alpha
@@ -53,7 +51,8 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, feat
 
 def _composite(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
                depths: Tensor, radii: Tensor, width: int, height: int,
-               absgrad: Tensor | None, gate: PixelGate | None) -> tuple[Tensor, Tensor]:
+               absgrad: Tensor | None, gradient_weights: PixelWeights | None
+               ) -> tuple[Tensor, Tensor]:
     """rasterize_reference without a background."""
     channels = features.shape[1]
     keep = torch.nonzero(radii > 0).squeeze(1)
@@ -72,18 +71,19 @@ def _composite(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Ten
     q = a[:, None] * dx**2 + 2 * b[:, None] * dx * dy + c[:, None] * dy**2
     alpha = torch.clamp(opacities[keep][:, None] * torch.exp(-0.5 * q), max=ALPHA_MAX)
     alpha = torch.where((alpha >= ALPHA_MIN) & (q >= 0), alpha, torch.zeros_like(alpha))
-    blocked = None  # [M, P] (member, gated pixel) pairs
-    if gate is not None:
-        blocked = gate.members[keep][:, None] & gate.pixels.reshape(1, -1)
-        alpha = torch.where(blocked, alpha.detach(), alpha)
+    scale = None  # [M, P] the weight of each (Gaussian, pixel) pair's gradient
+    if gradient_weights is not None:
+        members = gradient_weights.members[keep][:, None]
+        scale = torch.where(members, gradient_weights.weights.reshape(1, -1).to(alpha), 1.0)
+        alpha = alpha.detach() + scale * (alpha - alpha.detach())
     after = torch.cumprod(1 - alpha, dim=0)  # [M, P] transmittance after each Gaussian
     before = torch.cat([torch.ones_like(after[:1]), after[:-1]], dim=0)
     contributes = (after >= TRANSMITTANCE_MIN).to(alpha.dtype)
     weights = alpha * before * contributes  # [M, P]
-    if blocked is None:
+    if scale is None:
         image = weights.T @ features[keep]  # [P, C]
     else:
-        image = ((weights * ~blocked).T @ features[keep]
-                 + (weights * blocked).T @ features[keep].detach())
+        image = ((weights * scale).T @ features[keep]
+                 + (weights * (1.0 - scale)).T @ features[keep].detach())
     alpha_total = weights.sum(0)
     return image.reshape(height, width, channels), alpha_total.reshape(height, width)

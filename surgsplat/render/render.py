@@ -12,8 +12,9 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
+from surgsplat.render.pixel_weights import PixelWeights
 from surgsplat.render.project import Projection, project
-from surgsplat.render.rasterize import Backend, PixelGate, rasterize
+from surgsplat.render.rasterize import Backend, rasterize
 from surgsplat.render.sh import sh_colour
 
 MIN_ALPHA_FOR_DEPTH = 1e-6
@@ -75,15 +76,15 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
            K: Tensor, width: int, height: int, world_to_camera: Tensor | None = None,
            sh_degree: int | None = None, extras: dict[str, Tensor] | None = None,
            background: Tensor | None = None,
-           absgrad: Tensor | None = None, gate: PixelGate | None = None,
+           absgrad: Tensor | None = None, gradient_weights: PixelWeights | None = None,
            backend: Backend = "auto", near: float = 0.01) -> RenderOutput:
     """Render Gaussians: means [N,3], scales [N,3] (linear), quats [N,4] (w,x,y,z), opacities [N],
     colors [N,3] RGB, or [N,K,3] SH coefficients when sh_degree is given.
 
     extras: name -> [N] or [N,k] per-Gaussian values to alpha-blend (normals, semantic logits, ...);
     they come back in RenderOutput.extras as [H, W, k].
-    background [3]: colour behind the Gaussians (black when None). absgrad [N], gate: see
-    rasterize (the gate filters every channel's gradients).
+    background [3]: colour behind the Gaussians (black when None). absgrad [N],
+    gradient_weights: see rasterize (the weights scale every channel's gradients).
     """
     projection = project(means, scales, quats, K, width, height, world_to_camera, near=near,
                          backend=backend)
@@ -100,7 +101,7 @@ def render(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, colo
         background = torch.cat([background.to(features), features.new_zeros(features.shape[1] - 3)])
     image, alpha = rasterize(projection.means2d, projection.conics, opacities, features,
                              projection.depths, projection.radii, width, height,
-                             absgrad=absgrad, background=background, gate=gate,
+                             absgrad=absgrad, background=background, gradient_weights=gradient_weights,
                              backend=backend)
 
     sizes = tuple(value.reshape(value.shape[0], -1).shape[1] for value in extras.values())

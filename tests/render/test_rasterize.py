@@ -8,7 +8,8 @@ import torch
 
 from surgsplat.render import native as native_loader
 from surgsplat.render.native import resolve_backend
-from surgsplat.render.rasterize import PixelGate, rasterize
+from surgsplat.render.pixel_weights import PixelWeights
+from surgsplat.render.rasterize import rasterize
 from surgsplat.render.reference import rasterize_reference
 
 needs_native = pytest.mark.skipif(native_loader.native_module() is None,
@@ -16,15 +17,15 @@ needs_native = pytest.mark.skipif(native_loader.native_module() is None,
 DIFFERENTIABLE = ("means2d", "conics", "opacities", "features")
 
 
-def run(scene, backend, grad_seed=1, background=None, gate=None, pixel_weights=None):
+def run(scene, backend, grad_seed=1, background=None, weights=None, pixel_weights=None):
     """Forward and backward with a fixed random upstream gradient (times `pixel_weights` [H, W]
-    when given)."""
+    when given), with the gradient weights `weights` (PixelWeights) when given."""
     leaves = {k: scene[k].detach().clone().requires_grad_() for k in DIFFERENTIABLE}
     absgrad = torch.zeros(scene["means2d"].shape[0], dtype=scene["means2d"].dtype)
     image, alpha = rasterize(leaves["means2d"], leaves["conics"], leaves["opacities"],
                              leaves["features"], scene["depths"], scene["radii"],
                              scene["width"], scene["height"], absgrad=absgrad,
-                             background=background, gate=gate, backend=backend)
+                             background=background, gradient_weights=weights, backend=backend)
     generator = torch.Generator().manual_seed(grad_seed)
     grad_image = torch.randn(image.shape, generator=generator, dtype=image.dtype)
     grad_alpha = torch.randn(alpha.shape, generator=generator, dtype=alpha.dtype)
@@ -131,48 +132,58 @@ def test_background_matches_reference(native_isa, scene_factory, num, opacity, s
         assert torch.equal(plain[2][name], black[2][name]), name
 
 
-def random_gate(scene, seed):
-    """A gate of about half the Gaussians and a disc of about a third of the pixels."""
+def random_weights(scene, seed, binary):
+    """Gradient weights of about half the Gaussians: 0 on a disc of about a third of the pixels
+    and 1 elsewhere (binary, a gate), or uniform in [0, 1] on every pixel."""
     generator = torch.Generator().manual_seed(seed)
     members = torch.rand(scene["means2d"].shape[0], generator=generator) < 0.5
+    if not binary:
+        shape = (scene["height"], scene["width"])
+        return PixelWeights(torch.rand(shape, generator=generator), members)
     y, x = torch.meshgrid(torch.arange(scene["height"]), torch.arange(scene["width"]),
                           indexing="ij")
     centre_x, centre_y = scene["width"] * 0.4, scene["height"] * 0.6
-    pixels = (x - centre_x) ** 2 + (y - centre_y) ** 2 < 0.1 * scene["width"] * scene["height"]
-    return PixelGate(pixels, members)
+    disc = (x - centre_x) ** 2 + (y - centre_y) ** 2 < 0.1 * scene["width"] * scene["height"]
+    return PixelWeights((~disc).float(), members)
 
 
+@pytest.mark.parametrize("binary", [True, False], ids=["gate", "continuous"])
 @pytest.mark.parametrize("num,width,height,channels", [(300, 37, 29, 3), (400, 48, 40, 9)])
-def test_gated_gradients_match_reference(native_isa, scene_factory, num, width, height,
-                                         channels):
-    """With a PixelGate: native == reference in every gradient and absgrad (forward unchanged);
-    in both, a member's gradient is that of the loss over the ungated pixels alone, and every
-    other Gaussian's is that of the whole loss, each to 1e-4 relative L2 (float32)."""
+def test_weighted_gradients_match_reference(native_isa, scene_factory, num, width, height,
+                                            channels, binary):
+    """With PixelWeights: native == reference in every gradient and absgrad (forward unchanged);
+    in both, a member's gradient is that of the loss with each pixel's term weighted by its
+    weight, and every other Gaussian's is that of the whole loss, each to 1e-4 relative L2
+    (float32)."""
     scene = scene_factory(num, width, height, channels=channels, seed=num, scale=0.3)
-    gate = random_gate(scene, num)
+    weights = random_weights(scene, num, binary)
     background = torch.linspace(0.2, 0.9, channels)
-    native = run(scene, "native", gate=gate, background=background)
-    reference = run(scene, "reference", gate=gate, background=background)
+    native = run(scene, "native", weights=weights, background=background)
+    reference = run(scene, "reference", weights=weights, background=background)
     plain = run(scene, "native", background=background)
     assert torch.equal(native[0], plain[0]) and torch.equal(native[1], plain[1])
     for name in DIFFERENTIABLE:
         assert relative_error(native[2][name], reference[2][name]) < 1e-4, name
     assert relative_error(native[3], reference[3]) < 1e-4
-    ungated = run(scene, "native", background=background, pixel_weights=(~gate.pixels).float())
-    members = gate.members
+    weighted_loss = run(scene, "native", background=background, pixel_weights=weights.weights)
+    members = weights.members
     for name in DIFFERENTIABLE:
-        gated = native[2][name]
-        assert relative_error(gated[members], ungated[2][name][members]) < 1e-4, name
-        assert relative_error(gated[~members], plain[2][name][~members]) < 1e-4, name
-        # the gate matters: the members' gradients from the gated pixels are not negligible
-        assert relative_error(gated[members], plain[2][name][members]) > 0.05, name
+        weighted = native[2][name]
+        assert relative_error(weighted[members], weighted_loss[2][name][members]) < 1e-4, name
+        assert relative_error(weighted[~members], plain[2][name][~members]) < 1e-4, name
+        # the weights matter: the members' gradients differ from the unweighted ones
+        assert relative_error(weighted[members], plain[2][name][members]) > 0.05, name
 
 
-def test_gate_shape_is_checked(scene_factory):
+def test_gradient_weights_are_checked(scene_factory):
     scene = scene_factory(10, 16, 16)
-    gate = PixelGate(torch.zeros(16, 15, dtype=torch.bool), torch.zeros(10, dtype=torch.bool))
-    with pytest.raises(ValueError, match="gate's pixels must be"):
-        run(scene, "auto", gate=gate)
+    members = torch.zeros(10, dtype=torch.bool)
+    with pytest.raises(ValueError, match="gradient weights must be"):
+        run(scene, "auto", weights=PixelWeights(torch.ones(16, 15), members))
+    with pytest.raises(ValueError, match="must be float and their members bool"):
+        run(scene, "auto", weights=PixelWeights(torch.ones(16, 16), members.float()))
+    with pytest.raises(ValueError, match=r"must lie in \[0, 1\]"):
+        run(scene, "auto", weights=PixelWeights(torch.full((16, 16), 1.5), members))
 
 
 def test_background_shape_is_checked(scene_factory):

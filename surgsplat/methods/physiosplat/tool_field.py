@@ -21,7 +21,7 @@
 - Tool-free rendering (Eq. 2): with `when.tissue_only` every tool Gaussian gets opacity 0, which
   composites exactly as the tissue subset alone.
 - Hidden tissue learns only where it is seen: no loss of a training step reaches a tissue
-  Gaussian through the frame's tool pixels (`pixel_gate`, see `losses`); from the pixels where
+  Gaussian through the frame's tool pixels (`gradient_weights`, see `losses`); from the pixels where
   it shows, every Gaussian learns.
 - Densification (`densify_weights`): none where the tool proxy's signed distance is below the
   margin (tool Gaussians and tissue touching the tool); a tissue Gaussian whose projected centre
@@ -46,7 +46,7 @@ from torch import Tensor, nn
 
 from surgsplat.image.pinhole import backproject
 from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
-from surgsplat.model.capabilities import (DensifyWeighting, GradientGate, PointSource,
+from surgsplat.model.capabilities import (DensifyWeighting, GradientWeighting, PointSource,
                                           ToolMembership, ToolMotion)
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
                                        InitialPoints, ParamGroup, RenderContext, SceneInfo,
@@ -56,7 +56,7 @@ from surgsplat.model.phases import Phase
 from surgsplat.model.physics import (PHANTOM_EXTENT_MM, ToolProxy, arap_strain, neighbour_graph,
                                      tool_proxy)
 from surgsplat.model.state import GaussianState
-from surgsplat.render.rasterize import PixelGate
+from surgsplat.render.pixel_weights import PixelWeights
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
 from surgsplat.render.sh import SH_C0
@@ -118,7 +118,7 @@ class ToolField(Component):
 
     phase = Phase.TOOL
     separates_tool = True
-    provides = (ToolMembership, ToolMotion, PointSource, GradientGate, DensifyWeighting)
+    provides = (ToolMembership, ToolMotion, PointSource, GradientWeighting, DensifyWeighting)
 
     def __init__(self, config: ToolFieldConfig):
         super().__init__()
@@ -263,12 +263,13 @@ class ToolField(Component):
         self.last_tissue_image = torch.empty_like(state_dict.setdefault(key, torch.zeros(0, 0, 3)))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
-    def pixel_gate(self, gaussians: GaussianModel, when: FrameTime) -> PixelGate | None:
+    def gradient_weights(self, gaussians: GaussianModel, when: FrameTime) -> PixelWeights | None:
         """A training render keeps the tissue Gaussians from the gradients of the frame's tool
-        pixels (`losses` says why); the tool Gaussians learn from every pixel."""
+        pixels, weight 0 there and 1 elsewhere (`losses` says why); the tool Gaussians learn
+        from every pixel."""
         if when.tool_pixels is None:
             return None
-        return PixelGate(when.tool_pixels, ~self.tool_members(gaussians))
+        return PixelWeights((~when.tool_pixels).float(), ~self.tool_members(gaussians))
 
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
@@ -308,7 +309,7 @@ class ToolField(Component):
     def losses(self, context: RenderContext, active: frozenset[str]) -> dict[str, Tensor]:
         """"mask": BCE of the rendered tool probability against the tool mask over the field
         of view. No loss of a training step reaches a tissue Gaussian through the frame's tool
-        pixels (`pixel_gate`): there the render is the tool's to explain.
+        pixels (`gradient_weights`): there the render is the tool's to explain.
         - Where the rendered tool is thinner than the frame's, the mask loss would ask for more
           tool probability at the tissue Gaussians under it: fade, shrink and move them, or
           flip their logits (per-Gaussian Adam moves a logit by about the learning rate per
