@@ -71,6 +71,9 @@ and (d) +specular (the full `physiosplat` preset); and the full preset trained w
 dilated and eroded by 10 px (`train.tool_mask_offset_px`). Targets: physiosplat psnr_occluded
 >= 3 dB above the better of deform3dgs and endogaussian, psnr_tissue no lower than
 endogaussian, 0 collisions, training time <= 2x endogaussian, peak RSS <= 4 GB.
+The tool's edge (`tool_edges` metrics) is reported beside them: the rendered tool probability
+over the mask and at 3 and 10 px outside it, and the depth bias of the tissue within 10 px of
+the tool and beyond.
 """
 
 from __future__ import annotations
@@ -492,7 +495,9 @@ SUITES = {
                  ("train.tool_mask_offset_px=-10",)),
         ),
         metrics=("psnr_tissue", "ssim", "psnr_occluded", "depth_rmse_occluded_mm", "psnr_specular",
-                 "depth_rmse_mm", "chamfer_mm", "collisions", "arap_strain_mean"),
+                 "depth_rmse_mm", "chamfer_mm", "collisions", "arap_strain_mean",
+                 "tool_probability_inside", "tool_probability_3px", "tool_probability_10px",
+                 "depth_bias_near_tool_mm", "depth_bias_away_from_tool_mm"),
         baseline="endogaussian"),
 }
 

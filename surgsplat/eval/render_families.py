@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
+from scipy.ndimage import distance_transform_edt
 
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.phantom.generate import HIGHLIGHTS_DIR, TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
@@ -24,6 +25,7 @@ from surgsplat.eval.geometry_metrics import depth_rmse
 from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, ssim_zeroed
 from surgsplat.eval.lpips import load_lpips, lpips_distance
 from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
+from surgsplat.model.channels import TOOL_PROBABILITY
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
@@ -113,6 +115,56 @@ class OccludedFamily(MetricFamily):
                 "depth_rmse_occluded": "render vs gt/tissue_depth over the same pixels",
                 "occluded_render": "tissue-only render (tool left out) for methods that "
                                    "separate the tool, else the ordinary render"}
+
+
+RING_DISTANCES_PX = (3, 10)
+"""Distances from the tool mask at which the rendered tool probability is measured: the ring of
+tissue pixels whose distance to the nearest tool pixel is within half a pixel of each."""
+NEAR_TOOL_PX = 10.0
+"""Tissue pixels within this distance of the tool mask are "near the tool"."""
+
+
+class ToolEdgeFamily(MetricFamily):
+    """How sharply the tool's rendered edge follows the mask, and whether the tissue next to the
+    tool has the depth of the tissue elsewhere: tool_probability_inside, tool_probability_3px,
+    tool_probability_10px (models rendering the TOOL_PROBABILITY channel), depth_bias_near_tool
+    and depth_bias_away_from_tool (every model, scenes with depth); frames with tool pixels."""
+
+    name = "tool_edges"
+
+    def score(self, view: FrameView) -> dict[str, float]:
+        frame = view.frame
+        if not frame.tool.any():
+            return {}
+        distance = torch.from_numpy(distance_transform_edt(~frame.tool.numpy())).float()
+        row = {}
+        probability = view.render.extras.get(TOOL_PROBABILITY)
+        if probability is not None:
+            probability = probability[..., 0]
+            row["tool_probability_inside"] = float(probability[frame.tool].mean())
+            for ring in RING_DISTANCES_PX:
+                pixels = frame.tissue & ((distance - ring).abs() <= 0.5)
+                if pixels.any():
+                    row[f"tool_probability_{ring}px"] = float(probability[pixels].mean())
+        if frame.depth is not None:
+            error = view.render.depth - frame.depth
+            valid = frame.tissue & (frame.depth > 0)
+            for key, pixels in (("depth_bias_near_tool", valid & (distance <= NEAR_TOOL_PX)),
+                                ("depth_bias_away_from_tool", valid & (distance > NEAR_TOOL_PX))):
+                if pixels.any():
+                    row[key] = float(error[pixels].mean())
+        return row
+
+    def conventions(self) -> dict[str, str]:
+        rings = ", ".join(f"{ring}px" for ring in RING_DISTANCES_PX)
+        return {"tool_probability": "the rendered tool probability, mean over the tool mask "
+                                    "(inside) and over the rings of tissue pixels at "
+                                    f"{rings} (within half a pixel) from it, frames with tool "
+                                    "pixels",
+                "depth_bias": "rendered minus the frame's depth (positive: too deep), mean over "
+                              "the tissue pixels with depth within "
+                              f"{NEAR_TOOL_PX:g} px of the tool mask (near_tool) and beyond "
+                              "(away_from_tool), frames with tool pixels"}
 
 
 class DecompositionFamily(MetricFamily):

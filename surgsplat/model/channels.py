@@ -68,3 +68,6 @@ REFLECTANCE = "reflectance"
 """Standard name of a decomposition's reflectance channel: colour [H, W, 3]."""
 ILLUMINATION = "illumination"
 """Standard name of a decomposition's illumination channel: scalar [H, W, 1] in [0, 1]."""
+TOOL_PROBABILITY = "tool_probability"
+"""Standard name of the channel of a model that separates the tool: the rendered probability
+that a pixel shows tool, [H, W, 1] in [0, 1]."""

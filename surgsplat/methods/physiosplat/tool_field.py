@@ -45,7 +45,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from surgsplat.image.pinhole import backproject
-from surgsplat.model.channels import ChannelDescriptor, ChannelKind, Colormap
+from surgsplat.model.channels import TOOL_PROBABILITY, ChannelDescriptor, ChannelKind, Colormap
 from surgsplat.model.capabilities import (DensifyWeighting, GradientWeighting, PointSource,
                                           ToolMembership, ToolMotion)
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
@@ -63,7 +63,7 @@ from surgsplat.render.sh import SH_C0
 
 SEMANTIC_KEY = "semantic_logit"
 """Per-Gaussian attribute holding the semantic logit s ([N]; sigmoid(s) = tissue probability)."""
-TOOL_CHANNEL = "tool_probability"
+TOOL_CHANNEL = TOOL_PROBABILITY
 """Rendered channel [H, W, 1]: blended tool probability 1 - sigmoid(s)."""
 
 
