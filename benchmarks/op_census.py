@@ -3,13 +3,13 @@ how its time divides between surgsplat's native kernels, torch's fused Adam, the
 operators and the framework around them.
 
     python benchmarks/op_census.py [--presets deform3dgs surgsplat ...] [--warmup 400]
-                                   [--steps 20] [--threads 2] [--phantom DIR] [--out FILE]
+                                   [--steps 20] [--threads 2] [--phantom DIR] [--work DIR]
+                                   [--out FILE]
 
 Each preset trains at its default schedule on the full "pulling" phantom (generated under --work
 when --phantom is not given) in this process: --warmup steps, then --steps more that
 torch.profiler records (operators only, no stacks or shapes, so that recording costs little;
-with the default --warmup, the steps are early in the fine stage of every preset). Per
-preset:
+with the default --warmup, the steps are early in the fine stage of every preset). Per preset:
 seconds per profiled step (the wall time of the steps), the operators' self CPU time per step,
 its shares by kind (OPERATOR_KINDS), the ATen operator calls per step, and the operators with
 the most self time. Where the py-spy phase tables of bench_train say "the autograd engine" and
