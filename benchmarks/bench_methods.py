@@ -497,7 +497,8 @@ SUITES = {
         metrics=("psnr_tissue", "ssim", "psnr_occluded", "depth_rmse_occluded_mm", "psnr_specular",
                  "depth_rmse_mm", "chamfer_mm", "collisions", "arap_strain_mean",
                  "tool_probability_inside", "tool_probability_3px", "tool_probability_10px",
-                 "depth_bias_near_tool_mm", "depth_bias_away_from_tool_mm"),
+                 "depth_bias_near_tool_mm", "depth_bias_away_from_tool_mm",
+                 "tissue_depth_bias_near_tool_mm"),
         baseline="endogaussian"),
 }
 

@@ -22,6 +22,7 @@ from surgsplat.data.layout import frame_stem
 from surgsplat.data.ply import read_ply_mesh
 from surgsplat.data.scene import Frame
 from surgsplat.model.component import FrameTime
+from surgsplat.model.dynamic import render_frame
 from surgsplat.model.state import GaussianState
 from surgsplat.render.render import RenderOutput
 from surgsplat.train.run import TrainedRun
@@ -75,6 +76,19 @@ class FrameView:
         Gaussians in the world."""
         with torch.no_grad():
             return self.frame.seen_by(self.run.model.camera_at(self.frame.camera, self.when))
+
+    @cached_property
+    def tissue_render(self) -> RenderOutput:
+        """The render of the tissue alone (the tool's Gaussians left out) for a model that
+        separates the tool, else the ordinary render; computed once for every family that
+        needs it."""
+        if not self.run.model.separates_tool:
+            return self.render
+        frame = self.frame
+        with torch.no_grad():
+            return render_frame(self.run.model, frame.camera,
+                                FrameTime(frame.index, frame.time, tissue_only=True),
+                                self.background)
 
     @cached_property
     def state(self) -> GaussianState:

@@ -26,8 +26,6 @@ from surgsplat.eval.image_metrics import psnr_tissue, psnr_zeroed, ssim_tissue, 
 from surgsplat.eval.lpips import load_lpips, lpips_distance
 from surgsplat.eval.metric_family import EvalOptions, MetricFamily, FrameView
 from surgsplat.model.channels import TOOL_PROBABILITY
-from surgsplat.model.component import FrameTime
-from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
 
 
@@ -101,12 +99,9 @@ class OccludedFamily(MetricFamily):
     name = "occluded"
 
     def score(self, view: FrameView) -> dict[str, float]:
-        hidden, run, frame = view.render, view.run, view.frame
-        if run.model.separates_tool:
-            hidden = render_frame(run.model, frame.camera,
-                                  FrameTime(frame.index, frame.time, tissue_only=True),
-                                  view.background)
-        return occluded_row(hidden.rgb.clamp(0, 1), hidden.depth, frame, run.scene.root)
+        hidden = view.tissue_render
+        return occluded_row(hidden.rgb.clamp(0, 1), hidden.depth, view.frame,
+                            view.run.scene.root)
 
     def conventions(self) -> dict[str, str]:
         return {"psnr_occluded": "render vs gt/tissue_images over the tool pixels inside the "
@@ -127,8 +122,10 @@ NEAR_TOOL_PX = 10.0
 class ToolEdgeFamily(MetricFamily):
     """How sharply the tool's rendered edge follows the mask, and whether the tissue next to the
     tool has the depth of the tissue elsewhere: tool_probability_inside, tool_probability_3px,
-    tool_probability_10px (models rendering the TOOL_PROBABILITY channel), depth_bias_near_tool
-    and depth_bias_away_from_tool (every model, scenes with depth); frames with tool pixels."""
+    tool_probability_10px (models rendering the TOOL_PROBABILITY channel); depth_bias_near_tool
+    and depth_bias_away_from_tool of the render (every model, scenes with depth), and
+    tissue_depth_bias_near_tool of the tissue alone (models that separate the tool); frames with
+    tool pixels."""
 
     name = "tool_edges"
 
@@ -149,10 +146,14 @@ class ToolEdgeFamily(MetricFamily):
         if frame.depth is not None:
             error = view.render.depth - frame.depth
             valid = frame.tissue & (frame.depth > 0)
-            for key, pixels in (("depth_bias_near_tool", valid & (distance <= NEAR_TOOL_PX)),
+            near = valid & (distance <= NEAR_TOOL_PX)
+            for key, pixels in (("depth_bias_near_tool", near),
                                 ("depth_bias_away_from_tool", valid & (distance > NEAR_TOOL_PX))):
                 if pixels.any():
                     row[key] = float(error[pixels].mean())
+            if view.run.model.separates_tool and near.any():
+                tissue_error = view.tissue_render.depth - frame.depth
+                row["tissue_depth_bias_near_tool"] = float(tissue_error[near].mean())
         return row
 
     def conventions(self) -> dict[str, str]:
@@ -164,7 +165,8 @@ class ToolEdgeFamily(MetricFamily):
                 "depth_bias": "rendered minus the frame's depth (positive: too deep), mean over "
                               "the tissue pixels with depth within "
                               f"{NEAR_TOOL_PX:g} px of the tool mask (near_tool) and beyond "
-                              "(away_from_tool), frames with tool pixels"}
+                              "(away_from_tool), frames with tool pixels; tissue_depth_bias: "
+                              "the same near the tool, of the tissue-only render"}
 
 
 class DecompositionFamily(MetricFamily):

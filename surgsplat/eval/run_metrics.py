@@ -55,7 +55,7 @@ METRIC_FAMILIES, UNLOADABLE_FAMILIES = load_extensions(FAMILY_GROUP, BUILT_IN_FA
 """Every metric family by entry-point name (its class), the built-in ones first; and the error
 of each installed one that could not be loaded (`evaluate_run` notes them in metrics.json)."""
 DEPTH_KEYS = ("depth_rmse", "depth_rmse_occluded", "depth_bias_near_tool",
-              "depth_bias_away_from_tool")
+              "depth_bias_away_from_tool", "tissue_depth_bias_near_tool")
 """Metrics in the scene's depth unit, named with it when it is millimetres."""
 CONVENTIONS = {
     "evaluated_on": "the frames every metric is over: test (held out, every 8th frame from 1) "

@@ -21,9 +21,15 @@ def frame_with_tool(depth: torch.Tensor | None) -> Frame:
                  camera=None, tool=tool, fov=torch.ones(H, W, dtype=torch.bool))
 
 
-def view(frame: Frame, probability: torch.Tensor | None, depth: torch.Tensor):
+def view(frame: Frame, probability: torch.Tensor | None, depth: torch.Tensor,
+         tissue_depth: torch.Tensor | None = None):
+    """A FrameView's parts the family reads; `tissue_depth`, when given, is the depth of the
+    render of a model that separates the tool with the tool left out."""
     extras = {} if probability is None else {"tool_probability": probability[..., None]}
-    return SimpleNamespace(frame=frame, render=SimpleNamespace(extras=extras, depth=depth))
+    model = SimpleNamespace(separates_tool=tissue_depth is not None)
+    return SimpleNamespace(frame=frame, run=SimpleNamespace(model=model),
+                           render=SimpleNamespace(extras=extras, depth=depth),
+                           tissue_render=SimpleNamespace(depth=tissue_depth))
 
 
 def family() -> ToolEdgeFamily:
@@ -51,6 +57,16 @@ def test_depth_bias_tells_the_tissue_beside_the_tool_from_the_rest():
     assert row["depth_bias_near_tool"] == pytest.approx(0.5, abs=1e-5)
     assert row["depth_bias_away_from_tool"] == pytest.approx(-0.1, abs=1e-5)
     assert not any(key.startswith("tool_probability") for key in row)  # no tool channel
+    assert "tissue_depth_bias_near_tool" not in row  # the model does not separate the tool
+
+
+def test_the_tissue_alone_has_its_own_bias_beside_the_tool():
+    truth = torch.full((H, W), 50.0)
+    rendered, tissue = truth - 0.8, truth.clone()
+    tissue[:, 10:20] += 0.3  # hidden under the rendered tool's rim: pushed deeper
+    row = family().score(view(frame_with_tool(truth), None, rendered, tissue_depth=tissue))
+    assert row["depth_bias_near_tool"] == pytest.approx(-0.8, abs=1e-5)
+    assert row["tissue_depth_bias_near_tool"] == pytest.approx(0.3, abs=1e-5)
 
 
 def test_a_frame_without_tool_pixels_is_not_scored():
