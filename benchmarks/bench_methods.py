@@ -73,7 +73,8 @@ dilated and eroded by 10 px (`train.tool_mask_offset_px`). Targets: physiosplat 
 endogaussian, 0 collisions, training time <= 2x endogaussian, peak RSS <= 4 GB.
 The tool's edge (`tool_edges` metrics) is reported beside them: the rendered tool probability
 over the mask and at 3 and 10 px outside it, and the depth bias of the tissue within 10 px of
-the tool and beyond.
+the tool and beyond. `physiosplat-edge-band-5px` is the full preset whose tissue learns less
+from the 5 px beside the tool mask (`components.tool.edge_band_px`).
 """
 
 from __future__ import annotations
@@ -493,6 +494,8 @@ SUITES = {
                  ("train.tool_mask_offset_px=10",)),
             Case("physiosplat-masks-eroded-10px", "physiosplat", "pulling",
                  ("train.tool_mask_offset_px=-10",)),
+            Case("physiosplat-edge-band-5px", "physiosplat", "pulling",
+                 ("components.tool.edge_band_px=5",)),
         ),
         metrics=("psnr_tissue", "ssim", "psnr_occluded", "depth_rmse_occluded_mm", "psnr_specular",
                  "depth_rmse_mm", "chamfer_mm", "collisions", "arap_strain_mean",

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 import torch.nn.functional as F
+from scipy.ndimage import distance_transform_edt
 from torch import Tensor, nn
 
 from surgsplat.image.pinhole import backproject
@@ -104,6 +105,11 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     """Colour difference (mean over RGB) at which an occluded Gaussian's weight is 1/e."""
     strain_neighbours: int = field(default=16, metadata={"range": "[1, inf)"})
     """k of the canonical kNN graph of the arap_strain_mean diagnostic."""
+    edge_band_px: float = field(default=0.0, metadata={"range": "[0, inf)"})
+    """Tissue Gaussians learn from the tissue pixels within this distance (pixels) of the
+    frame's tool mask with a gradient weight rising linearly from 0 at the mask to 1 at this
+    distance, where the rendered tool's rim covers them (`gradient_weights`); 0: from every
+    tissue pixel whole."""
 
     def resolve(self, scene: SceneInfo) -> "ToolFieldConfig":
         return dataclasses.replace(self, num_frames=scene.num_frames)
@@ -133,6 +139,8 @@ class ToolField(Component):
         # saved, so that a resumed run densifies as the uninterrupted one does
         self.register_buffer("last_tissue_image", torch.zeros(0, 0, 3))
         self._reference: tuple[Tensor, Tensor] | None = None  # canonical tool (means, colours)
+        # (frame index, H, W) -> [H, W] tissue gradient weights (edge_band_px)
+        self._tissue_weights: dict[tuple[int, ...], Tensor] = {}
 
     # ---- set-up ----
     def setup(self, context: SetupContext) -> None:
@@ -269,7 +277,19 @@ class ToolField(Component):
         from every pixel."""
         if when.tool_pixels is None:
             return None
-        return PixelWeights((~when.tool_pixels).float(), ~self.tool_members(gaussians))
+        return PixelWeights(self._tissue_weights_of(when), ~self.tool_members(gaussians))
+
+    def _tissue_weights_of(self, when: FrameTime) -> Tensor:
+        """[H, W] the tissue Gaussians' gradient weights in a training render at `when`: 0 on
+        the tool pixels, rising to 1 over edge_band_px beyond them (computed once per frame)."""
+        band = self.config.edge_band_px
+        if band <= 0:
+            return (~when.tool_pixels).float()
+        key = (when.index, *when.tool_pixels.shape)  # a coarse stage renders smaller
+        if key not in self._tissue_weights:
+            distance = distance_transform_edt(~when.tool_pixels.numpy())
+            self._tissue_weights[key] = torch.from_numpy(np.minimum(distance / band, 1.0)).float()
+        return self._tissue_weights[key]
 
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:

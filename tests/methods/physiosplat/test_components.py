@@ -473,3 +473,23 @@ def test_the_mask_loss_is_torch_binary_cross_entropy_over_the_masked_pixels():
     torch.testing.assert_close(ours_grad, reference_grad, atol=1e-12, rtol=1e-12)
     empty = masked_binary_cross_entropy(probability, target, torch.zeros_like(mask))
     assert float(empty) == 0.0
+
+
+@pytest.mark.parametrize("band", [0.0, 4.0])
+def test_tissue_gradient_weights_ramp_away_from_the_tool_mask(band):
+    """The tissue Gaussians' gradient weights of a training render: 0 on the tool mask, and with
+    edge_band_px, distance / band beyond it up to 1 (without, 1 on every tissue pixel); the tool
+    Gaussians are not among the weighted ones."""
+    field = ToolFieldConfig(num_frames=2, edge_band_px=band).build()
+    tool = torch.zeros(6, 12, dtype=torch.bool)
+    tool[:, :3] = True  # columns 0..2; column 3 is 1 px from the tool, column 7 is 5 px
+    points = torch.arange(12, dtype=torch.float32).reshape(4, 3)
+    gaussians = GaussianModel.from_points(  # two tissue Gaussians (s >= 0), then two tool ones
+        points, torch.full((4, 3), 0.5), GaussianConfig(),
+        attributes={SEMANTIC_KEY: torch.tensor([4.0, 4.0, -4.0, -4.0])})
+    weights = field.gradient_weights(gaussians, FrameTime(1, 0.5, tool_pixels=tool))
+    assert weights.members.tolist() == [True, True, False, False]
+    expected_row = torch.tensor([0, 0, 0, *(min(d / band, 1.0) if band else 1.0
+                                            for d in range(1, 10))], dtype=torch.float32)
+    assert torch.allclose(weights.weights, expected_row.expand(6, 12), atol=1e-6)
+    assert field.gradient_weights(gaussians, FrameTime(1, 0.5)) is None  # not a training render
