@@ -26,9 +26,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import write_report  # noqa: E402
+from bench_render import full_pulling_phantom, write_report  # noqa: E402
 
-from surgsplat.data.phantom import PhantomConfig, generate_phantom  # noqa: E402
 from surgsplat.data.scene import load_scene  # noqa: E402
 from surgsplat.eval.articulation_metrics import (MIN_TOOL_FRACTION,  # noqa: E402
                                                  articulation_metrics, read_tool_kinematics)
@@ -58,8 +57,7 @@ def main() -> None:
     parser.add_argument("--json", action="store_true", help="write benchmarks/results/...")
     args = parser.parse_args()
     scene_dir, run = args.work / "pulling", args.work / f"run_{args.method}"
-    if not (scene_dir / "poses_bounds.npy").is_file():
-        generate_phantom(PhantomConfig(preset="full", motion="pulling"), scene_dir)
+    full_pulling_phantom(scene_dir)
     train_seconds = None
     if not (run / CHECKPOINT).is_file():
         train_seconds = timed("train", "--method", args.method, "--data", str(scene_dir),

@@ -24,10 +24,9 @@ import surgsplat  # noqa: F401  (before torch: sets surgsplat's OpenMP wait poli
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import write_report  # noqa: E402
+from bench_render import full_pulling_phantom, write_report  # noqa: E402
 from bench_train import test_psnr_and_visible  # noqa: E402
 
-from surgsplat.data.phantom import PhantomConfig, generate_phantom  # noqa: E402
 from surgsplat.data.scene import load_scene  # noqa: E402
 from surgsplat.methods.registry import method_config  # noqa: E402
 from surgsplat.train.trainer import Trainer  # noqa: E402
@@ -86,9 +85,7 @@ def main() -> None:
                         "benchmarks/results/bench_densify_split-<cpu>-<best ISA>.json)")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
-    phantom = args.phantom or args.work / "phantom-full-pulling"
-    if not (phantom / "poses_bounds.npy").is_file():
-        generate_phantom(PhantomConfig(preset="full", motion="pulling"), phantom)
+    phantom = full_pulling_phantom(args.phantom or args.work / "phantom-full-pulling")
     rows = []
     for mode in MODES:
         rows.append(run_mode(phantom, mode, args.work / f"run-{mode}", args.iters,

@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from surface_scene import surface_gaussians  # noqa: E402
 
 from surgsplat.atomic import write_text_atomic  # noqa: E402
+from surgsplat.data.phantom import PhantomConfig, generate_phantom  # noqa: E402
 from surgsplat.render import native  # noqa: E402
 from surgsplat.render.project import project  # noqa: E402
 from surgsplat.render.rasterize import rasterize  # noqa: E402
@@ -159,6 +160,14 @@ def case_in_subprocess(case: str, isa: str, repeats: int) -> dict:
     command = [sys.executable, __file__, "--case", case, "--isa", isa, "--repeats", str(repeats)]
     done = subprocess.run(command, capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def full_pulling_phantom(folder: Path) -> Path:
+    """`folder`, holding the full "pulling" phantom (640x512, 64 frames), generated there unless
+    it already holds a scene: the scene of the training benchmarks."""
+    if not (folder / "poses_bounds.npy").is_file():
+        generate_phantom(PhantomConfig(preset="full", motion="pulling"), folder)
+    return folder
 
 
 def results_path(benchmark: str, info: dict) -> Path:

@@ -72,12 +72,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import profile_train  # noqa: E402
-from bench_render import (PROBE_GAUSSIANS, PROBE_TILES, peak_rss_mb, results_path,  # noqa: E402
-                          write_report)
+from bench_render import (PROBE_GAUSSIANS, PROBE_TILES, full_pulling_phantom,  # noqa: E402
+                          peak_rss_mb, results_path, write_report)
 
 from surgsplat.methods.overrides import build_method_config  # noqa: E402
 from surgsplat.data.importer import ImportConfig, import_scene  # noqa: E402
-from surgsplat.data.phantom import PhantomConfig, generate_phantom  # noqa: E402
 from surgsplat.data.scene import load_scene  # noqa: E402
 from surgsplat.eval.image_metrics import psnr_tissue  # noqa: E402
 from surgsplat.methods.registry import PRESETS  # noqa: E402
@@ -390,9 +389,7 @@ def parse_args() -> argparse.Namespace:
 def cases(args) -> list[tuple[str, Path, str]]:
     """(scene, scene folder, preset) of every case, the phantom's first; the phantom generated
     and the real clip imported under --work when needed."""
-    phantom = args.phantom or args.work / PHANTOM
-    if not (phantom / "poses_bounds.npy").is_file():
-        generate_phantom(PhantomConfig(preset="full", motion="pulling"), phantom)
+    phantom = full_pulling_phantom(args.phantom or args.work / PHANTOM)
     found = [(PHANTOM, phantom, preset) for preset in args.presets]
     real = [preset for preset in args.presets if preset in REAL_PRESETS]
     if args.skip_real or not real:

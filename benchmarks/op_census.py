@@ -31,9 +31,8 @@ import torch
 from torch.profiler import ProfilerActivity, profile
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import write_report  # noqa: E402
+from bench_render import full_pulling_phantom, write_report  # noqa: E402
 
-from surgsplat.data.phantom import PhantomConfig, generate_phantom  # noqa: E402
 from surgsplat.data.scene import load_scene  # noqa: E402
 from surgsplat.methods.overrides import build_method_config  # noqa: E402
 from surgsplat.methods.registry import PRESETS  # noqa: E402
@@ -123,9 +122,7 @@ def main() -> None:
     if native.native_module() is None:
         sys.exit("the native module is not built: run `make install` first")
     native.set_threads(args.threads)
-    phantom = args.phantom or args.work / "phantom-full-pulling"
-    if not (phantom / "poses_bounds.npy").is_file():
-        generate_phantom(PhantomConfig(preset="full", motion="pulling"), phantom)
+    phantom = full_pulling_phantom(args.phantom or args.work / "phantom-full-pulling")
     rows = []
     for preset in args.presets:
         rows.append(run_preset(phantom, preset, args.warmup, args.steps, args.work))
