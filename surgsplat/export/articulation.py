@@ -2,8 +2,9 @@
 
 The run's model gives the canonical tool (the Gaussians its components mark as tool,
 `SplatModel.tool_members`) and one rigid pose per frame (its `tool_motion`, a capability a tool
-field declares; `model.capabilities`). The jaws' own motion is estimated after training (`model.articulation`) from each
-training frame's observed tool points: its tool-mask pixels back-projected with its depth, mapped
+field declares; `model.capabilities`). An articulated tool field has its own hinge and jaw
+angles, which are written as they are. For a rigid one the jaws' own motion is estimated after
+training (`model.articulation`) from each training frame's observed tool points: its tool-mask pixels back-projected with its depth, mapped
 into the canonical tool frame by the inverse of the tool field's pose. Test frames are not used;
 each jaw's angles are interpolated (linearly in frame index) between the frames that saw that
 jaw, as are frames without enough tool in view; such frames take the shaft motion of the
@@ -28,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.data.phantom.kinematics import hinge_frame
@@ -45,6 +46,15 @@ MAX_CANONICAL_POINTS = 20000
 """At most this many tool Gaussians (a seeded subsample) enter the estimate."""
 MAX_OBSERVED_POINTS = 8000
 """At most this many observed tool points per frame (a seeded subsample)."""
+ESTIMATED_JOINTS = ("per training frame: a cylinder fitted to the back-projected tool pixels "
+                    "(shaft axis, its front end the hinge point); the hinge axis's roll and "
+                    "both jaw angles fitted jointly to the points ahead of it, with jaw "
+                    "templates from the frame where the jaws are most open, tracked through "
+                    "time")
+"""articulation.json's `method` of a rigid tool field's run (estimated after training)."""
+OWN_JOINTS = ("the articulated tool field's own hinge and per-frame jaw angles, trained with "
+              "the model (estimated at set-up as for a rigid field, then optimised)")
+"""articulation.json's `method` of an articulated tool field's run."""
 MIN_OPACITY = 0.05
 """Tool Gaussians less opaque than this are left out."""
 
@@ -97,25 +107,26 @@ def articulate(run: TrainedRun,
                options: ArticulationOptions = ArticulationOptions()) -> dict:
     """The run's articulation.json content (see the module docstring)."""
     motion = tool_motion(run)
+    poses = [tool_pose(motion, i) for i in range(len(run.scene.frames))]
+    own = motion.articulation(run.model.gaussians)
+    if own is not None:
+        return describe(own, poses, run.scene.depth_unit, OWN_JOINTS)
     canonical = canonical_tool(run)
     try:
         estimate = estimate_articulation(canonical, observe(run, motion), options)
     except ValueError as err:
         raise SurgsplatError(f"{run.run_dir}: cannot articulate the tool: {err}") from None
-    return describe(estimate, [tool_pose(motion, i) for i in range(len(run.scene.frames))],
-                    run.scene.depth_unit)
+    return describe(estimate, poses, run.scene.depth_unit, ESTIMATED_JOINTS)
 
 
-def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict:
+def describe(estimate: Articulation, poses: list[np.ndarray], unit: str, method: str) -> dict:
     """JSON-ready articulation of every frame (poses: the tool field's, one per frame)."""
     frame = hinge_frame(estimate.forward, estimate.axis, estimate.hinge_point)  # canonical
     estimated = list(estimate.frames)
     records = []
     for index, pose in enumerate(poses):
-        shaft_to_world = pose @ shaft_motion_at(estimate, index) @ frame
-        angles = [float(np.interp(index, estimate.frames[estimate.jaw_observed[:, j]],
-                                  estimate.jaw_angles_deg[estimate.jaw_observed[:, j], j]))
-                  for j in range(2)]
+        shaft_to_world = pose @ estimate.shaft_motion_at(index) @ frame
+        angles = [float(angle) for angle in estimate.jaw_angles_at(index)]
         records.append({"index": index, "shaft_to_world": shaft_to_world.tolist(),
                         "hinge_point": shaft_to_world[:3, 3].tolist(),
                         "hinge_axis": shaft_to_world[:3, 2].tolist(),
@@ -125,10 +136,7 @@ def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict
     return {
         "units": {"length": unit, "angle": "deg"},
         "frame": "world (the scene's); canonical: the tool field's canonical tool",
-        "method": "per training frame: a cylinder fitted to the back-projected tool pixels "
-                  "(shaft axis, its front end the hinge point); the hinge axis's roll and both "
-                  "jaw angles fitted jointly to the points ahead of it, with jaw templates from "
-                  "the frame where the jaws are most open, tracked through time",
+        "method": method,
         "canonical": {"hinge_point": estimate.hinge_point.tolist(),
                       "hinge_axis": estimate.axis.tolist(),
                       "forward": estimate.forward.tolist(),
@@ -141,24 +149,6 @@ def describe(estimate: Articulation, poses: list[np.ndarray], unit: str) -> dict
                        for j in range(2)],
         "frames": records,
     }
-
-
-def shaft_motion_at(estimate: Articulation, index: int) -> np.ndarray:
-    """[4, 4] the shaft's motion (the residual of the tool field's pose) at frame `index`:
-    estimated there, else interpolated between the estimated frames around it (rotation
-    slerped, translation linear in frame index), the nearest one's outside them."""
-    frames = estimate.frames
-    after = int(np.searchsorted(frames, index))
-    if after < len(frames) and frames[after] == index:
-        return estimate.shaft_motion[after]
-    if after == 0 or after == len(frames):
-        return estimate.shaft_motion[min(after, len(frames) - 1)]
-    pair = estimate.shaft_motion[after - 1:after + 1]  # [2, 4, 4]
-    weight = (index - frames[after - 1]) / (frames[after] - frames[after - 1])
-    motion = np.eye(4)
-    motion[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(pair[:, :3, :3]))(weight).as_matrix()
-    motion[:3, 3] = (1 - weight) * pair[0, :3, 3] + weight * pair[1, :3, 3]
-    return motion
 
 
 def part_geometry(estimate: Articulation, frame: np.ndarray) -> dict:

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from surgsplat.data.phantom.kinematics import hinge_frame
 
@@ -136,6 +136,30 @@ class Articulation:
     """[F, 2] bool: the frame saw enough of the jaw for its angle to be fitted."""
     canonical_jaw_deg: np.ndarray
     """[2] the jaws' angles in the template frame."""
+
+    def jaw_angles_at(self, index: int) -> np.ndarray:
+        """[2] each jaw's angle (degrees) at frame `index`: linear in frame index between the
+        frames that saw the jaw, the nearest one's outside them."""
+        return np.array([np.interp(index, self.frames[self.jaw_observed[:, j]],
+                                   self.jaw_angles_deg[self.jaw_observed[:, j], j])
+                         for j in range(2)])
+
+    def shaft_motion_at(self, index: int) -> np.ndarray:
+        """[4, 4] the shaft's motion at frame `index`: estimated there, else interpolated
+        between the estimated frames around it (rotation slerped, translation linear in frame
+        index), the nearest one's outside them."""
+        after = int(np.searchsorted(self.frames, index))
+        if after < len(self.frames) and self.frames[after] == index:
+            return self.shaft_motion[after]
+        if after == 0 or after == len(self.frames):
+            return self.shaft_motion[min(after, len(self.frames) - 1)]
+        pair = self.shaft_motion[after - 1:after + 1]  # [2, 4, 4]
+        weight = (index - self.frames[after - 1]) / (self.frames[after] - self.frames[after - 1])
+        motion = np.eye(4)
+        motion[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix(pair[:, :3, :3]))(
+            weight).as_matrix()
+        motion[:3, 3] = (1 - weight) * pair[0, :3, 3] + weight * pair[1, :3, 3]
+        return motion
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from surgsplat.errors import SurgsplatError
 
 if TYPE_CHECKING:
     from surgsplat.data.scene import Camera
+    from surgsplat.model.articulation import Articulation
     from surgsplat.model.component import FrameTime, InitialPoints, RenderContext, SetupContext
     from surgsplat.model.gaussians import GaussianModel
     from surgsplat.model.physics import ToolProxy
@@ -63,8 +64,9 @@ class HeldOutPoses(Protocol):
 
 
 class ToolMotion(Protocol):
-    """The rigid motion of the tool Gaussians (those of `ToolMembership`), frame by frame: what
-    the tool's articulation is estimated from."""
+    """The motion of the tool Gaussians (those of `ToolMembership`), frame by frame: a rigid pose
+    (the shaft's), and the jaws' own angles when the motion model has joints; what the tool's
+    articulation is read or estimated from."""
 
     def pose(self, index: int) -> tuple[Tensor, Tensor]:
         """Rotation vector [3] and translation [3] (scene units) taking the canonical tool to
@@ -73,6 +75,11 @@ class ToolMotion(Protocol):
     def proxy(self, state: GaussianState, gaussians: GaussianModel) -> ToolProxy | None:
         """The tool's collision proxy in `state` (the Gaussians at one time), which the
         `collisions` diagnostic tests; None when no tool Gaussian is opaque enough."""
+
+    def articulation(self, gaussians: GaussianModel) -> Articulation | None:
+        """The tool's own joints when its motion model has them (canonical frame, every frame
+        with its own jaw angles listed); None when the motion is rigid and the articulation is
+        to be estimated from the frames (`model.articulation`)."""
 
 
 class ToolMembership(Protocol):

@@ -6,7 +6,12 @@
   `model.membership`). The rendered channel `tool_probability` blends 1 - sigmoid(s); the loss
   term "mask" is its binary cross-entropy against the frame's tool mask over the field of view.
 - Tool Gaussians move rigidly (Eq. 1): mu(t) = R(t) mu + T(t), with their rotation turned by R(t)
-  and their canonical scales; tissue Gaussians keep what the components before this one (the
+  and their canonical scales. With `motion = "articulated"` (not in the paper) the tool is a
+  shaft and two jaws on one hinge (`tool_joints`): each jaw first turns about the hinge by its
+  own learnable angle at t, then the whole tool takes R(t), T(t). The hinge and the first
+  angles are estimated at set-up from the training frames' tool pixels (`model.articulation`),
+  which also corrects the registered poses to the shaft's; where that estimate cannot be made
+  (no depth, jaws never seen open) the field stays rigid. tissue Gaussians keep what the components before this one (the
   deformation field) made of them. R(t), T(t) map the canonical tool, which is the tool of the
   reference frame (the training frame with the most tool pixels), to frame t; composing the
   paper's per-frame increments gives the same map. Each frame has its own learnable pose (rotation
@@ -38,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 import torch
@@ -46,6 +52,9 @@ from scipy.ndimage import distance_transform_edt
 from torch import Tensor, nn
 
 from surgsplat.image.pinhole import backproject
+from surgsplat.methods.physiosplat.tool_joints import (Hinge, InitialJoints, initial_joints,
+                                                       jaw_parts, turn_jaws)
+from surgsplat.model.articulation import SHAFT, Articulation, Observation
 from surgsplat.model.channels import TOOL_PROBABILITY, ChannelDescriptor, ChannelKind, Colormap
 from surgsplat.model.capabilities import (DensifyWeighting, GradientWeighting, PointSource,
                                           ToolMembership, ToolMotion)
@@ -94,6 +103,14 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     """Adam learning rate of the per-frame rotation vectors (radians)."""
     translation_lr: float = field(default=1e-3, metadata={"range": "[0, inf)"})
     """Adam learning rate of the per-frame translations, in units of the scene extent."""
+    motion: Literal["rigid", "articulated"] = "rigid"
+    """How the tool Gaussians move: one rigid pose per frame (the paper), or a shaft with two
+    jaws turning about a hinge (see the module docstring)."""
+    jaw_lr: float = field(default=2e-3, metadata={"range": "[0, inf)"})
+    """Adam learning rate of the per-frame jaw angles (radians; articulated motion)."""
+    max_observed_points: int = field(default=8000, metadata={"range": "[1, inf)"})
+    """At most this many tool pixels per frame (a seeded subsample) enter the set-up's
+    articulation estimate."""
     icp_iterations: int = field(default=30, metadata={"range": "[0, inf)"})
     """Point-to-point ICP iterations per frame when the initial poses are registered."""
     min_tool_opacity: float = field(default=0.1, metadata={"range": "[0, 1]"})
@@ -119,8 +136,11 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
 
 
 class ToolField(Component):
-    """See the module docstring. rotations, translations: [F, 3] per frame; known [F] bool:
-    frames with a registered pose (training frames); seen [F] bool: frames that show the tool."""
+    """See the module docstring. rotations, translations: [F, 3] per frame; jaw_angles: [F, 2]
+    per frame (radians, articulated motion); known [F] bool: frames with a registered pose
+    (training frames); seen [F] bool: frames that show the tool; articulated: bool, the hinge
+    buffers hold an estimated hinge (`Hinge`: hinge_point, hinge_axis, hinge_forward [3],
+    canonical_jaws [2])."""
 
     phase = Phase.TOOL
     separates_tool = True
@@ -132,6 +152,12 @@ class ToolField(Component):
         frames = max(config.num_frames, 1)
         self.rotations = nn.Parameter(torch.zeros(frames, 3))
         self.translations = nn.Parameter(torch.zeros(frames, 3))  # units of `unit`
+        self.jaw_angles = nn.Parameter(torch.zeros(frames, 2))
+        self.register_buffer("articulated", torch.zeros((), dtype=torch.bool))
+        self.register_buffer("hinge_point", torch.zeros(3))
+        self.register_buffer("hinge_axis", torch.tensor([0.0, 0.0, 1.0]))
+        self.register_buffer("hinge_forward", torch.tensor([1.0, 0.0, 0.0]))
+        self.register_buffer("canonical_jaws", torch.zeros(2))
         self.register_buffer("unit", torch.ones(()))
         self.register_buffer("known", torch.zeros(frames, dtype=torch.bool))
         self.register_buffer("seen", torch.zeros(frames, dtype=torch.bool))
@@ -146,7 +172,8 @@ class ToolField(Component):
     def setup(self, context: SetupContext) -> None:
         self.unit.fill_(max(context.scene_extent, 1e-6))
         frames = list(context.frames)
-        clouds = {f.index: self._tool_pixels(f, self._depth_map(f, context.points))
+        depths = {f.index: self._depth_map(f, context.points) for f in frames}
+        clouds = {f.index: self._tool_pixels(f, depths[f.index], self.config.pixel_stride)
                   for f in frames}
         counted = {index: cloud[0].shape[0] for index, cloud in clouds.items()}
         if not counted or max(counted.values()) < 4:
@@ -159,6 +186,55 @@ class ToolField(Component):
             means, colors = means[keep], colors[keep]
         self._reference = (means, colors)
         self._register_poses(means, {f.index: f for f in frames}, clouds, reference)
+        if self.config.motion == "articulated":
+            self._articulate(means, frames, depths, reference)
+
+    @torch.no_grad()
+    def _articulate(self, model: Tensor, frames: list, depths: dict, reference: int) -> None:
+        """Hinge, jaw angles and shaft-corrected poses from every tool pixel of the `frames`
+        (back-projected with `depths`, index -> [H, W]) mapped into the canonical tool `model`
+        [K, 3] by the registered poses; the field stays rigid when that cannot be estimated."""
+        generator = torch.Generator().manual_seed(0)
+        observations = []
+        for frame in sorted(frames, key=lambda frame: frame.index):
+            index = frame.index
+            if not self.seen[index]:
+                continue
+            points, _ = self._tool_pixels(frame, depths[index], stride=1)
+            if points.shape[0] > self.config.max_observed_points:
+                keep = torch.randperm(points.shape[0], generator=generator)
+                points = points[keep[:self.config.max_observed_points]]
+            rotvec, translation = self.pose(index)
+            rotation = quaternion_to_matrix(axis_angle_to_quaternion(rotvec))
+            observations.append(Observation(index, ((points - translation) @ rotation).double()
+                                            .numpy()))
+        try:
+            joints = initial_joints(model, observations, reference)
+        except ValueError:
+            return
+        self._take_joints(joints)
+
+    def _take_joints(self, joints: InitialJoints) -> None:
+        """Set the hinge, the frames' jaw angles, and compose each frame's pose with its shaft
+        correction (the correction first, in the canonical frame)."""
+        from scipy.spatial.transform import Rotation
+
+        hinge = joints.hinge
+        self.hinge_point.copy_(hinge.point)
+        self.hinge_axis.copy_(hinge.axis)
+        self.hinge_forward.copy_(hinge.forward)
+        self.canonical_jaws.copy_(hinge.canonical_angles)
+        self.articulated.fill_(True)
+        self.jaw_angles[:] = hinge.canonical_angles
+        for index, angles in joints.angles.items():
+            self.jaw_angles[index] = angles
+            correction = joints.shaft_corrections[index]
+            rotation = Rotation.from_rotvec(self.rotations[index].double().numpy()).as_matrix()
+            translation = self.translations[index].double().numpy() * float(self.unit)
+            self.rotations[index] = torch.from_numpy(
+                Rotation.from_matrix(rotation @ correction[:3, :3]).as_rotvec()).float()
+            self.translations[index] = torch.from_numpy(
+                rotation @ correction[:3, 3] + translation).float() / self.unit
 
     def _depth_map(self, frame, points: Tensor) -> Tensor:
         """[H, W] depth of the frame's tool pixels: the observed depth, or without one
@@ -170,12 +246,12 @@ class ToolField(Component):
         depth = self.config.monocular_tool_depth * float(depths.median())
         return torch.full(frame.tool.shape, depth)
 
-    def _tool_pixels(self, frame, depth: Tensor) -> tuple[Tensor, Tensor]:
+    def _tool_pixels(self, frame, depth: Tensor, stride: int) -> tuple[Tensor, Tensor]:
         """World points [K, 3] and colours [K, 3] of the frame's tool pixels with depth > 0 in
-        `depth` [H, W]."""
-        stride = torch.zeros_like(frame.tool)
-        stride[::self.config.pixel_stride, ::self.config.pixel_stride] = True
-        mask = frame.tool & frame.fov & stride & (depth > 0)
+        `depth` [H, W], every stride-th in x and y."""
+        grid = torch.zeros_like(frame.tool)
+        grid[::stride, ::stride] = True
+        mask = frame.tool & frame.fov & grid & (depth > 0)
         points = backproject(depth, frame.camera.K, mask, frame.camera.camera_to_world)
         return points, frame.image[mask]
 
@@ -232,8 +308,11 @@ class ToolField(Component):
         return {SEMANTIC_KEY: self.config.semantic_lr}
 
     def param_groups(self) -> list[ParamGroup]:
-        return [ParamGroup("tool_rotation", [self.rotations], self.config.rotation_lr),
-                ParamGroup("tool_translation", [self.translations], self.config.translation_lr)]
+        groups = [ParamGroup("tool_rotation", [self.rotations], self.config.rotation_lr),
+                  ParamGroup("tool_translation", [self.translations], self.config.translation_lr)]
+        if self.config.motion == "articulated":
+            groups.append(ParamGroup("tool_jaws", [self.jaw_angles], self.config.jaw_lr))
+        return groups
 
     # ---- membership and capabilities ----
     def tool_members(self, gaussians: GaussianModel) -> Tensor:
@@ -245,24 +324,52 @@ class ToolField(Component):
 
     # ---- motion ----
     def pose(self, index: int) -> tuple[Tensor, Tensor]:
-        """Rotation vector [3] and translation [3] (scene units) of frame `index`: its own when
-        registered; else linear between the registered neighbours when both show the tool, the
-        nearer one's otherwise (ties: one without the tool, so that no tool is drawn over tissue
-        on the evidence of one side only)."""
+        """Rotation vector [3] and translation [3] (scene units) of frame `index` (`_at`)."""
+        rotation, translation = self._at(index, self.rotations, self.translations)
+        return rotation, translation * self.unit
+
+    def _at(self, index: int, *per_frame: Tensor) -> tuple[Tensor, ...]:
+        """Each of the per-frame tensors [F, ...] at frame `index`: its own row when registered;
+        else linear between the registered neighbours when both show the tool, the nearer
+        one's otherwise (ties: one without the tool, so that no tool is drawn over tissue on the
+        evidence of one side only)."""
         index = min(max(index, 0), self.known.shape[0] - 1)
         if self.known[index] or not self.known.any():
-            return self.rotations[index], self.translations[index] * self.unit
+            return tuple(values[index] for values in per_frame)
         registered = self.known.nonzero()[:, 0]
         before, after = registered[registered < index], registered[registered > index]
         sides = [int(side) for side in (before[-1:], after[:1]) if side.numel()]
         if len(sides) == 2 and self.seen[sides[0]] and self.seen[sides[1]]:
             weight = (index - sides[0]) / (sides[1] - sides[0])
             first, last = sides
-            rotation = torch.lerp(self.rotations[first], self.rotations[last], weight)
-            translation = torch.lerp(self.translations[first], self.translations[last], weight)
-            return rotation, translation * self.unit
+            return tuple(torch.lerp(values[first], values[last], weight) for values in per_frame)
         nearest = min(sides, key=lambda side: (abs(side - index), bool(self.seen[side])))
-        return self.rotations[nearest], self.translations[nearest] * self.unit
+        return tuple(values[nearest] for values in per_frame)
+
+    def hinge(self) -> Hinge:
+        """The canonical tool's hinge (meaningful when `articulated`)."""
+        return Hinge(self.hinge_point, self.hinge_axis, self.hinge_forward, self.canonical_jaws)
+
+    @torch.no_grad()
+    def articulation(self, gaussians: GaussianModel) -> Articulation | None:
+        """The tool's own articulation (`ToolMotion.articulation`): its hinge, the parts of its
+        tool Gaussians at least min_tool_opacity opaque, and the registered frames' jaw angles;
+        None when rigid."""
+        if not bool(self.articulated):
+            return None
+        params = gaussians.params
+        opaque = torch.sigmoid(params["opacity_logits"]) >= self.config.min_tool_opacity
+        means = params["means"][self.tool_members(gaussians) & opaque]
+        frames = (self.known & self.seen).nonzero()[:, 0].numpy()
+        hinge = self.hinge()
+        return Articulation(
+            points=means.double().numpy(), labels=jaw_parts(means, hinge).numpy(),
+            axis=hinge.axis.double().numpy(), hinge_point=hinge.point.double().numpy(),
+            forward=hinge.forward.double().numpy(), frames=frames,
+            shaft_motion=np.repeat(np.eye(4)[None], len(frames), axis=0),
+            jaw_angles_deg=np.degrees(self.jaw_angles[frames].double().numpy()),
+            jaw_observed=np.ones((len(frames), 2), dtype=bool),
+            canonical_jaw_deg=np.degrees(hinge.canonical_angles.double().numpy()))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
         # the image's size is the saved run's frames'; checkpoints written before it was saved
@@ -293,16 +400,22 @@ class ToolField(Component):
 
     def transform(self, state: GaussianState, gaussians: GaussianModel,
                   when: FrameTime) -> GaussianState:
-        """Tool Gaussians moved rigidly to `when` (dropped with `when.tissue_only`)."""
+        """Tool Gaussians moved to `when`, their jaws turned first when articulated (dropped
+        with `when.tissue_only`)."""
         tool = self.tool_members(gaussians)  # [N]
         if not tool.any():
             return state
-        rotvec, translation = self.pose(when.index)
+        rotvec, translation, jaws = self._at(when.index, self.rotations, self.translations,
+                                             self.jaw_angles)
         quat = axis_angle_to_quaternion(rotvec)  # [4]
         params = gaussians.params
-        rigid_means = params["means"] @ quaternion_to_matrix(quat).T + translation  # [N, 3]
-        rigid_quats = quaternion_multiply(quat.expand_as(params["quats"]),
-                                          F.normalize(params["quats"], dim=-1))
+        means, quats = params["means"], F.normalize(params["quats"], dim=-1)
+        if bool(self.articulated):
+            hinge = self.hinge()
+            parts = torch.where(tool, jaw_parts(means, hinge), SHAFT)
+            means, quats = turn_jaws(means, quats, parts, jaws - hinge.canonical_angles, hinge)
+        rigid_means = means @ quaternion_to_matrix(quat).T + translation * self.unit  # [N, 3]
+        rigid_quats = quaternion_multiply(quat.expand_as(quats), quats)
         column = tool[:, None]
         opacities = state.opacities
         if when.tissue_only:

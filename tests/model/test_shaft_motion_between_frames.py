@@ -3,7 +3,6 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from surgsplat.export.articulation import shaft_motion_at
 from surgsplat.model.articulation import Articulation
 
 
@@ -27,8 +26,8 @@ def estimate_at(frames: list[int], motions: list[np.ndarray]) -> Articulation:
 
 def test_frames_between_estimates_are_interpolated_and_outside_take_the_nearest():
     estimate = estimate_at([2, 6], [motion(0.0, 0.0), motion(40.0, 4.0)])
-    np.testing.assert_allclose(shaft_motion_at(estimate, 2), motion(0.0, 0.0), atol=1e-12)
-    np.testing.assert_allclose(shaft_motion_at(estimate, 6), motion(40.0, 4.0), atol=1e-12)
-    np.testing.assert_allclose(shaft_motion_at(estimate, 3), motion(10.0, 1.0), atol=1e-9)
-    np.testing.assert_allclose(shaft_motion_at(estimate, 0), motion(0.0, 0.0), atol=1e-12)
-    np.testing.assert_allclose(shaft_motion_at(estimate, 9), motion(40.0, 4.0), atol=1e-12)
+    np.testing.assert_allclose(estimate.shaft_motion_at(2), motion(0.0, 0.0), atol=1e-12)
+    np.testing.assert_allclose(estimate.shaft_motion_at(6), motion(40.0, 4.0), atol=1e-12)
+    np.testing.assert_allclose(estimate.shaft_motion_at(3), motion(10.0, 1.0), atol=1e-9)
+    np.testing.assert_allclose(estimate.shaft_motion_at(0), motion(0.0, 0.0), atol=1e-12)
+    np.testing.assert_allclose(estimate.shaft_motion_at(9), motion(40.0, 4.0), atol=1e-12)
