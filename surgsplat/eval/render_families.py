@@ -112,6 +112,69 @@ class OccludedFamily(MetricFamily):
                                    "separate the tool, else the ordinary render"}
 
 
+OPAQUE_ALPHA = 0.99
+"""A pixel of the tool-free render is opaque at this accumulated opacity or more."""
+
+
+class NeverSeenFamily(MetricFamily):
+    """Whether the tool-free view has a hole, and what it shows where no training frame saw the
+    tissue: tool_free_transparent_fraction (every model: the field-of-view pixels of the render
+    of the tissue alone less than OPAQUE_ALPHA opaque; transparent_fraction, the same of the
+    ordinary render, tells a hole from a render translucent everywhere) and
+    tool_free_alpha_min; over the
+    never-seen pixels, the field-of-view pixels that a tool covers in every training frame
+    (static cameras only: elsewhere a pixel is not one place of the tissue),
+    psnr_never_seen and depth_rmse_never_seen (against the phantom's tissue without the tool)
+    and never_seen_fraction (of the field of view)."""
+
+    name = "never_seen"
+
+    def __init__(self, run: TrainedRun, options: EvalOptions):
+        super().__init__(run, options)
+        self.region = never_seen_pixels(run.scene.train_frames)
+
+    def score(self, view: FrameView) -> dict[str, float]:
+        hidden, fov = view.tissue_render, view.frame.fov
+        row = {"transparent_fraction": float((view.render.alpha[fov] < OPAQUE_ALPHA)
+                                             .float().mean()),
+               "tool_free_transparent_fraction": float((hidden.alpha[fov] < OPAQUE_ALPHA)
+                                                       .float().mean()),
+               "tool_free_alpha_min": float(hidden.alpha[fov].min())}
+        if self.region is not None and self.region.shape == fov.shape and self.region.any():
+            row["never_seen_fraction"] = float(self.region[fov].float().mean())
+            scores = hidden_tissue_scores(hidden.rgb.clamp(0, 1), hidden.depth, view.frame,
+                                          view.run.scene.root, self.region & fov)
+            row.update({f"{name}_never_seen": value for name, value in scores.items()})
+        return row
+
+    def conventions(self) -> dict[str, str]:
+        return {"transparent_fraction": "field-of-view pixels of the render less than "
+                                        f"{OPAQUE_ALPHA} opaque",
+                "tool_free_transparent_fraction": "field-of-view pixels of the tissue-only "
+                                                  f"render less than {OPAQUE_ALPHA} opaque",
+                "tool_free_alpha_min": "the least opacity of the tissue-only render in the "
+                                       "field of view",
+                "never_seen": "the field-of-view pixels a tool covers in every training frame "
+                              "(static camera); psnr_never_seen and depth_rmse_never_seen: the "
+                              "tissue-only render there against gt/tissue_images and "
+                              "gt/tissue_depth"}
+
+
+def never_seen_pixels(frames: list[Frame]) -> torch.Tensor | None:
+    """[H, W] bool: the pixels that no frame of `frames` shows as tissue, inside the first
+    frame's field of view; None when the frames' cameras differ (a pixel is then no fixed place
+    of the tissue) or there are none."""
+    if not frames:
+        return None
+    pose = frames[0].camera.world_to_camera
+    if any(not torch.allclose(frame.camera.world_to_camera, pose) for frame in frames[1:]):
+        return None
+    seen = torch.zeros_like(frames[0].fov)
+    for frame in frames:
+        seen |= frame.tissue
+    return frames[0].fov & ~seen
+
+
 RING_DISTANCES_PX = (3, 10)
 """Distances from the tool mask at which the rendered tool probability is measured: the ring of
 tissue pixels whose distance to the nearest tool pixel is within half a pixel of each."""
@@ -197,17 +260,25 @@ def occluded_row(rgb: torch.Tensor, depth: torch.Tensor, frame: Frame,
     """psnr_occluded and depth_rmse_occluded of one frame: the render rgb [H, W, 3] and depth
     [H, W] over the frame's tool pixels inside the FOV, against the tissue the tool hid. Empty
     when the scene has no gt/tissue_images for the frame or the frame shows no tool."""
+    scores = hidden_tissue_scores(rgb, depth, frame, scene_root, frame.tool & frame.fov)
+    return {f"{name}_occluded": value for name, value in scores.items()}
+
+
+def hidden_tissue_scores(rgb: torch.Tensor, depth: torch.Tensor, frame: Frame, scene_root: Path,
+                         pixels: torch.Tensor) -> dict[str, float]:
+    """"psnr" and "depth_rmse" of the render rgb [H, W, 3] and depth [H, W] over `pixels`
+    [H, W] bool against the phantom's tissue without the tool (gt/tissue_images,
+    gt/tissue_depth); empty without the image or any pixel, no depth_rmse without the depth."""
     image_path = scene_root / TISSUE_IMAGES_DIR / f"{frame_stem(frame.index)}.png"
-    occluded = frame.tool & frame.fov
-    if not image_path.is_file() or not occluded.any():
+    if not image_path.is_file() or not pixels.any():
         return {}
     truth = torch.from_numpy(read_image(image_path)).float() / 255.0
-    row = {"psnr_occluded": psnr_tissue(rgb, truth, occluded)}
+    row = {"psnr": psnr_tissue(rgb, truth, pixels)}
     depth_path = scene_root / TISSUE_DEPTH_DIR / f"{frame_stem(frame.index)}.npy"
     if depth_path.is_file():
         truth_depth = torch.from_numpy(read_npy(depth_path))
-        if (occluded & (truth_depth > 0)).any():
-            row["depth_rmse_occluded"] = depth_rmse(depth, truth_depth, occluded)
+        if (pixels & (truth_depth > 0)).any():
+            row["depth_rmse"] = depth_rmse(depth, truth_depth, pixels)
     return row
 
 

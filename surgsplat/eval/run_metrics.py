@@ -40,6 +40,7 @@ BUILT_IN_FAMILIES = tuple(
         ("specular", "render_families", "SpecularFamily"),
         ("occluded", "render_families", "OccludedFamily"),
         ("tool_edges", "render_families", "ToolEdgeFamily"),
+        ("never_seen", "render_families", "NeverSeenFamily"),
         ("diagnostics", "component_metrics", "ComponentFamily"),
         ("geometry", "geometry_families", "SurfaceFamily"),
         ("mesh_geometry", "geometry_families", "MeshFamily"),
@@ -55,7 +56,7 @@ METRIC_FAMILIES, UNLOADABLE_FAMILIES = load_extensions(FAMILY_GROUP, BUILT_IN_FA
 """Every metric family by entry-point name (its class), the built-in ones first; and the error
 of each installed one that could not be loaded (`evaluate_run` notes them in metrics.json)."""
 DEPTH_KEYS = ("depth_rmse", "depth_rmse_occluded", "depth_bias_near_tool",
-              "depth_bias_away_from_tool", "tissue_depth_bias_near_tool")
+              "depth_bias_away_from_tool", "tissue_depth_bias_near_tool", "depth_rmse_never_seen")
 """Metrics in the scene's depth unit, named with it when it is millimetres."""
 CONVENTIONS = {
     "evaluated_on": "the frames every metric is over: test (held out, every 8th frame from 1) "
@@ -65,7 +66,8 @@ CONVENTIONS = {
                       "where the scene's ground truth (or what a metric needs: depth, tool "
                       "pixels, highlights) covers fewer: image (psnr_*, ssim*, lpips), "
                       "depth (depth_rmse), specular, occluded (*_occluded), tool_edges "
-                      "(tool_probability_*, depth_bias_*), diagnostics "
+                      "(tool_probability_*, depth_bias_*), never_seen (*transparent_fraction, "
+                      "*_never_seen), diagnostics "
                       "(the components' averages), geometry (chamfer_mm, p2s_*, fscore_1mm), "
                       "mesh_geometry (mesh_*), gaussians_p2s, normals, decomposition",
     "fps": "rendering the test frames, this machine",

@@ -98,7 +98,8 @@ class PhantomConfig:
     preset: str = "small"
     """Size preset: "small" (160x128, 16 frames) or "full" (640x512, 64 frames)."""
     motion: str = "pulling"
-    """Tissue motion: "pulling" (tool lifts the tissue) or "cutting" (a groove opens)."""
+    """Tissue motion: "pulling" (tool lifts the tissue), "cutting" (a groove opens) or
+    "grasping" (the tool stays in view, its jaws open wide and close three times)."""
     camera: str = "static"
     """Endoscope: "static" or "moving" (translates a few mm, turns a few degrees)."""
     seed: int = 0

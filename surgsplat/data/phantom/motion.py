@@ -1,4 +1,4 @@
-"""Time curves of the phantom's two motions: what the tool and the tissue do over a sequence.
+"""Time curves of the phantom's motions: what the tool and the tissue do over a sequence.
 
 Time t is frame index / number of frames, in [0, 1), so a motion looks the same at any frame
 count. Every curve passes through keyframes with smoothstep easing between them, so positions
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MOTIONS = ("pulling", "cutting")
+MOTIONS = ("pulling", "cutting", "grasping")
 """Valid motion names."""
 
 
@@ -84,5 +84,18 @@ def motion_program(name: str) -> MotionProgram:
             jaw_deg=_snips(0.25, 0.8, 6, 25.0),
             lift_mm=Keyframes((0.0,), (0.0,)),
             cut_front=Keyframes((0.0, 0.25, 0.95), (0.0, 0.0, 1.35)),
+        )
+    if name == "grasping":
+        # In view from the first frame to the last at one grasp point: the jaws open wide and
+        # close three times, lifting the tissue while closed; the tissue under the shaft is
+        # never seen.
+        times = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+        return MotionProgram(
+            name=name,
+            insertion=Keyframes((0.0,), (0.0,)),
+            jaw_deg=Keyframes(times, (10.0, 60.0, 0.0, 0.0, 60.0, 0.0, 0.0, 60.0, 0.0, 0.0,
+                                      45.0)),
+            lift_mm=Keyframes(times, (0.0, 0.0, 0.0, 6.0, 0.0, 0.0, 6.0, 0.0, 0.0, 6.0, 0.0)),
+            cut_front=Keyframes((0.0,), (0.0,)),
         )
     raise ValueError(f"unknown motion {name!r}; valid motions: {', '.join(MOTIONS)}")
