@@ -59,6 +59,15 @@ def moving_phantom(tmp_path_factory) -> Path:
                             tmp_path_factory.mktemp("moving") / "small")
 
 
+@pytest.fixture(scope="session")
+def grasping_phantom(tmp_path_factory) -> Path:
+    """The small 'grasping' phantom (the tool in every frame), generated once per session."""
+    from surgsplat.data.phantom import PhantomConfig, generate_phantom
+
+    return generate_phantom(PhantomConfig(preset="small", motion="grasping"),
+                            tmp_path_factory.mktemp("grasping") / "small")
+
+
 @pytest.fixture(params=["avx512", "avx2", "baseline", "neon"])
 def native_isa(request) -> str:
     """Runs the test once per ISA variant of the native kernels, with that variant in use;

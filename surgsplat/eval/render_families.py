@@ -17,6 +17,7 @@ import torch
 from scipy.ndimage import distance_transform_edt
 
 from surgsplat.data.layout import frame_stem
+from surgsplat.data.never_seen import never_seen_pixels
 from surgsplat.data.phantom.generate import HIGHLIGHTS_DIR, TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
 from surgsplat.data.scene import Frame, read_image, read_npy, read_tool_mask
 from surgsplat.eval.decomposition import (CONVENTIONS as DECOMPOSITION_CONVENTIONS,
@@ -158,21 +159,6 @@ class NeverSeenFamily(MetricFamily):
                               "(static camera); psnr_never_seen and depth_rmse_never_seen: the "
                               "tissue-only render there against gt/tissue_images and "
                               "gt/tissue_depth"}
-
-
-def never_seen_pixels(frames: list[Frame]) -> torch.Tensor | None:
-    """[H, W] bool: the pixels that no frame of `frames` shows as tissue, inside the first
-    frame's field of view; None when the frames' cameras differ (a pixel is then no fixed place
-    of the tissue) or there are none."""
-    if not frames:
-        return None
-    pose = frames[0].camera.world_to_camera
-    if any(not torch.allclose(frame.camera.world_to_camera, pose) for frame in frames[1:]):
-        return None
-    seen = torch.zeros_like(frames[0].fov)
-    for frame in frames:
-        seen |= frame.tissue
-    return frames[0].fov & ~seen
 
 
 RING_DISTANCES_PX = (3, 10)

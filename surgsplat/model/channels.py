@@ -71,3 +71,7 @@ ILLUMINATION = "illumination"
 TOOL_PROBABILITY = "tool_probability"
 """Standard name of the channel of a model that separates the tool: the rendered probability
 that a pixel shows tool, [H, W, 1] in [0, 1]."""
+OBSERVED = "observed"
+"""Standard name of the channel that tells observed from filled tissue: the rendered share of a
+pixel's opacity that comes from Gaussians some frame observed, [H, W, 1] in [0, 1] (0 where a
+model filled tissue no frame shows, and where nothing is rendered)."""

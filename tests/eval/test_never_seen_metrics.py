@@ -12,7 +12,8 @@ import torch
 from surgsplat.data.layout import frame_stem
 from surgsplat.data.phantom.generate import TISSUE_DEPTH_DIR, TISSUE_IMAGES_DIR
 from surgsplat.data.scene import Camera, Frame
-from surgsplat.eval.render_families import NeverSeenFamily, never_seen_pixels
+from surgsplat.data.never_seen import never_seen_pixels
+from surgsplat.eval.render_families import NeverSeenFamily
 
 H, W = 20, 30
 

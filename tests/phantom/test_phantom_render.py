@@ -10,7 +10,7 @@ from surgsplat.data.phantom.scene import PhantomScene
 SMALL = PRESETS["small"]
 
 
-@pytest.mark.parametrize("motion", ["pulling", "cutting"])
+@pytest.mark.parametrize("motion", ["pulling", "cutting", "grasping"])
 def test_tissue_hit_is_the_first_along_each_ray(motion: str):
     """z - h(z xn, z yn) < 0 at 48 depths in front of every 3rd pixel's hit, and the surface
     faces the camera (the residual increases through the hit) at every pixel of every frame."""
@@ -45,3 +45,15 @@ def test_tool_enters_then_grasps():
     assert not scene.render(0).tool_mask.any()  # still out of view
     assert scene.render(8).tool_mask.any()
     assert scene.tool_pose(0.0).jaw_deg > 20.0 and scene.tool_pose(0.5).jaw_deg == 0.0
+
+
+def test_grasping_keeps_the_tool_in_view_and_opens_its_jaws_wide():
+    """Every frame shows the tool; the jaws open to 60 degrees and close; the same pixels stay
+    under the tool in every frame (tissue that is never seen)."""
+    scene = PhantomScene(SMALL.width, SMALL.height, SMALL.focal, 32, "grasping", seed=0)
+    frames = [scene.render(index) for index in range(32)]
+    tool = np.stack([frame.tool_mask for frame in frames])
+    assert tool.any(axis=(1, 2)).all()
+    assert tool.all(axis=0).any()
+    openings = [scene.tool_pose(scene.time(index)).jaw_deg for index in range(32)]
+    assert max(openings) > 55 and min(openings) < 5

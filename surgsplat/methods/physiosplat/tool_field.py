@@ -25,6 +25,12 @@
   show no tool put it behind their camera, where it is culled.
 - Tool-free rendering (Eq. 2): with `when.tissue_only` every tool Gaussian gets opacity 0, which
   composites exactly as the tissue subset alone.
+- Tissue no training frame shows (not in the paper; `fill_never_seen`, static cameras): the
+  pixels a tool covers in every training frame get tissue Gaussians at the depth and colour
+  continued from around them (`data.never_seen`), so that the tool-free view has no hole there.
+  No loss reaches them through the tool's pixels, so they stay the guess they are. Each
+  Gaussian's attribute `observed` (0 for these, 1 for every other, inherited by densification)
+  is rendered as the channel `observed` (`model.channels.OBSERVED`) outside training.
 - Hidden tissue learns only where it is seen: no loss of a training step reaches a tissue
   Gaussian through the frame's tool pixels (`gradient_weights`, see `losses`); from the pixels where
   it shows, every Gaussian learns.
@@ -51,11 +57,13 @@ import torch.nn.functional as F
 from scipy.ndimage import distance_transform_edt
 from torch import Tensor, nn
 
+from surgsplat.data.never_seen import FilledTissue, fill_never_seen
 from surgsplat.image.pinhole import backproject
 from surgsplat.methods.physiosplat.tool_joints import (Hinge, InitialJoints, initial_joints,
                                                        jaw_parts, turn_jaws)
 from surgsplat.model.articulation import SHAFT, Articulation, Observation
-from surgsplat.model.channels import TOOL_PROBABILITY, ChannelDescriptor, ChannelKind, Colormap
+from surgsplat.model.channels import (OBSERVED, TOOL_PROBABILITY, ChannelDescriptor,
+                                      ChannelKind, Colormap)
 from surgsplat.model.capabilities import (DensifyWeighting, GradientWeighting, PointSource,
                                           ToolMembership, ToolMotion)
 from surgsplat.model.component import (Component, ComponentConfig, Diagnostics, FrameTime,
@@ -75,6 +83,9 @@ SEMANTIC_KEY = "semantic_logit"
 """Per-Gaussian attribute holding the semantic logit s ([N]; sigmoid(s) = tissue probability)."""
 TOOL_CHANNEL = TOOL_PROBABILITY
 """Rendered channel [H, W, 1]: blended tool probability 1 - sigmoid(s)."""
+OBSERVED_KEY = "observed"
+"""Per-Gaussian attribute ([N], fixed): 0 for the Gaussians filling never-seen tissue, else 1
+(`fill_never_seen`)."""
 
 
 @dataclass
@@ -122,6 +133,10 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     """Colour difference (mean over RGB) at which an occluded Gaussian's weight is 1/e."""
     strain_neighbours: int = field(default=16, metadata={"range": "[1, inf)"})
     """k of the canonical kNN graph of the arap_strain_mean diagnostic."""
+    fill_never_seen: bool = False
+    """Add tissue Gaussians where a tool covers the same pixels in every training frame (static
+    camera), at the depth and colour continued from around them, and render the `observed`
+    channel (see the module docstring)."""
     edge_band_px: float = field(default=0.0, metadata={"range": "[0, inf)"})
     """Tissue Gaussians learn from the tissue pixels within this distance (pixels) of the
     frame's tool mask with a gradient weight rising linearly from 0 at the mask to 1 at this
@@ -165,6 +180,7 @@ class ToolField(Component):
         # saved, so that a resumed run densifies as the uninterrupted one does
         self.register_buffer("last_tissue_image", torch.zeros(0, 0, 3))
         self._reference: tuple[Tensor, Tensor] | None = None  # canonical tool (means, colours)
+        self._fill: InitialPoints | None = None  # tissue no training frame shows (means, colours)
         # (frame index, H, W) -> [H, W] tissue gradient weights (edge_band_px)
         self._tissue_weights: dict[tuple[int, ...], Tensor] = {}
 
@@ -186,6 +202,10 @@ class ToolField(Component):
             means, colors = means[keep], colors[keep]
         self._reference = (means, colors)
         self._register_poses(means, {f.index: f for f in frames}, clouds, reference)
+        if self.config.fill_never_seen:
+            filled = fill_never_seen(frames, depths)
+            if filled is not None:
+                self._fill = self._fill_points(filled, frames[0].camera)
         if self.config.motion == "articulated":
             self._articulate(means, frames, depths, reference)
 
@@ -235,6 +255,15 @@ class ToolField(Component):
                 Rotation.from_matrix(rotation @ correction[:3, :3]).as_rotvec()).float()
             self.translations[index] = torch.from_numpy(
                 rotation @ correction[:3, 3] + translation).float() / self.unit
+
+    def _fill_points(self, filled: FilledTissue, camera) -> InitialPoints:
+        """Tissue points (every pixel_stride-th in x and y) of the filled never-seen pixels,
+        back-projected from the static `camera` at the filled depth, with the filled colours."""
+        grid = torch.zeros_like(filled.never_seen)
+        grid[::self.config.pixel_stride, ::self.config.pixel_stride] = True
+        mask = filled.never_seen & grid & (filled.depth > 0)
+        points = backproject(filled.depth, camera.K, mask, camera.camera_to_world)
+        return InitialPoints(points, filled.colour[mask])
 
     def _depth_map(self, frame, points: Tensor) -> Tensor:
         """[H, W] depth of the frame's tool pixels: the observed depth, or without one
@@ -295,17 +324,34 @@ class ToolField(Component):
         self.translations[frame.index] = torch.from_numpy(behind).float() / self.unit
 
     def initial_points(self, context: SetupContext) -> InitialPoints | None:
+        """The canonical tool, then the tissue filling never-seen pixels (if any)."""
         if self._reference is None:
             return None
-        return InitialPoints(*self._reference)
+        if self._fill is None:
+            return InitialPoints(*self._reference)
+        return InitialPoints(torch.cat([self._reference[0], self._fill.means]),
+                             torch.cat([self._reference[1], self._fill.colors]))
 
     def initial_attributes(self, context: SetupContext) -> dict[str, Tensor]:
-        logits = torch.full((context.points.shape[0],), self.config.init_logit)
-        logits[context.rows_added_by(self)] = -self.config.init_logit
-        return {SEMANTIC_KEY: logits}
+        count = context.points.shape[0]
+        logits = torch.full((count,), self.config.init_logit)
+        added = context.rows_added_by(self)
+        start = 0 if added.start is None else added.start
+        tool = slice(start, start + (0 if self._reference is None else
+                                     self._reference[0].shape[0]))
+        logits[tool] = -self.config.init_logit
+        attributes = {SEMANTIC_KEY: logits}
+        if self.config.fill_never_seen:
+            observed = torch.ones(count)
+            observed[tool.stop:added.stop] = 0.0
+            attributes[OBSERVED_KEY] = observed
+        return attributes
 
     def attribute_lrs(self) -> dict[str, float]:
-        return {SEMANTIC_KEY: self.config.semantic_lr}
+        lrs = {SEMANTIC_KEY: self.config.semantic_lr}
+        if self.config.fill_never_seen:
+            lrs[OBSERVED_KEY] = 0.0
+        return lrs
 
     def param_groups(self) -> list[ParamGroup]:
         groups = [ParamGroup("tool_rotation", [self.rotations], self.config.rotation_lr),
@@ -320,7 +366,10 @@ class ToolField(Component):
         return ~(gaussians.params[SEMANTIC_KEY].detach() >= 0.0)
 
     def channel_descriptors(self) -> tuple[ChannelDescriptor, ...]:
-        return (ChannelDescriptor(TOOL_CHANNEL, ChannelKind.PROBABILITY, Colormap.INFERNO),)
+        tool = ChannelDescriptor(TOOL_CHANNEL, ChannelKind.PROBABILITY, Colormap.INFERNO)
+        if not self.config.fill_never_seen:
+            return (tool,)
+        return (tool, ChannelDescriptor(OBSERVED, ChannelKind.PROBABILITY, Colormap.GRAY))
 
     # ---- motion ----
     def pose(self, index: int) -> tuple[Tensor, Tensor]:
@@ -434,7 +483,10 @@ class ToolField(Component):
     # ---- semantic channel and its loss ----
     def render_channels(self, state, gaussians: GaussianModel, camera, when) -> dict[str, Tensor]:
         probability = 1.0 - torch.sigmoid(gaussians.params[SEMANTIC_KEY])  # [N]
-        return {TOOL_CHANNEL: probability}
+        channels = {TOOL_CHANNEL: probability}
+        if self.config.fill_never_seen and when.losses is None:  # no loss reads it
+            channels[OBSERVED] = gaussians.params[OBSERVED_KEY].detach()
+        return channels
 
     def loss_names(self) -> tuple[str, ...]:
         return ("mask",)
