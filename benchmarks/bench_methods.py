@@ -74,7 +74,13 @@ endogaussian, 0 collisions, training time <= 2x endogaussian, peak RSS <= 4 GB.
 The tool's edge (`tool_edges` metrics) is reported beside them: the rendered tool probability
 over the mask and at 3 and 10 px outside it, and the depth bias of the tissue within 10 px of
 the tool and beyond. `physiosplat-edge-band-5px` is the full preset whose tissue learns less
-from the 5 px beside the tool mask (`components.tool.edge_band_px`).
+from the 5 px beside the tool mask (`components.tool.edge_band_px`). Since issue 55 the preset's
+tool field is articulated and fills the tissue no frame shows; `physiosplat-rigid` is the
+paper's rigid tool field, and the articulated field's articulation (`jaw_angle_rmse_deg`,
+`hinge_offset_mm`) is the model's own (the rigid one's is estimated after training). The
+`grasping` phantom (the tool in every frame, its jaws opening to 60 degrees three times) runs
+endogaussian and both tool fields again, with the never-seen tissue scored (`*_never_seen`,
+`tool_free_transparent_fraction`).
 """
 
 from __future__ import annotations
@@ -122,7 +128,8 @@ PHANTOMS = {"pulling": ("--preset", "full", "--motion", "pulling"),
             "pulling-moving-camera": ("--preset", "full", "--motion", "pulling",
                                       "--camera", "moving"),
             "livar": ("--preset", "full", "--motion", "pulling", "--lighting", "livar"),
-            "hivar": ("--preset", "full", "--motion", "pulling", "--lighting", "hivar")}
+            "hivar": ("--preset", "full", "--motion", "pulling", "--lighting", "hivar"),
+            "grasping": ("--preset", "full", "--motion", "grasping")}
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SCARED_FOCAL_PX, SCARED_BASELINE_MM = 517.0, 4.2
 """The SCARED pair's camera, assumed (the sample ships no calibration): half the dataset's
@@ -185,6 +192,9 @@ SURGSPLAT_WITH_SDF = (
 """The `surgsplat` preset with Endo-GSG's part added: its SDF, the SDF's losses and the occlusion
 importance map, at the endogsg preset's values (what the preset had before issue 33's
 leave-one-out measured it)."""
+PHYSIOSPLAT_RIGID = ("components.tool.motion=rigid", "components.tool.fill_never_seen=false")
+"""The paper's tool field: one rigid pose per frame, nothing filled where no frame sees the
+tissue (the presets' tool field is articulated and fills it since issue 55)."""
 SURGSPLAT_WITHOUT_PLANAR = ("components.planar=null", "losses.flatten=null", "losses.normal=null",
                             "gaussians.init_thickness=1")
 SURGSPLAT_WITHOUT_LUMISTATE = ("components.lumistate=null", "losses.retinex=null",
@@ -463,7 +473,7 @@ SUITES = {
         metrics=("psnr_tissue", "psnr_tissue_gain", "psnr_occluded", "gaussians_p2s_mean_mm",
                  "gaussians_p2s_median_mm",
                  "gaussians_p2s_p95_mm", "mesh_p2s_median_mm", "mesh_coverage",
-                 "mesh_export_seconds", "depth_rmse_mm"),
+                 "mesh_export_seconds", "depth_rmse_mm", "jaw_angle_rmse_deg", "hinge_offset_mm"),
         baseline="endogsg"),
     "lumistate": Suite(
         cases=(
@@ -496,12 +506,19 @@ SUITES = {
                  ("train.tool_mask_offset_px=-10",)),
             Case("physiosplat-edge-band-5px", "physiosplat", "pulling",
                  ("components.tool.edge_band_px=5",)),
+            Case("physiosplat-rigid", "physiosplat", "pulling", PHYSIOSPLAT_RIGID),
+            Case("endogaussian-grasping", "endogaussian", "grasping"),
+            Case("physiosplat-grasping", "physiosplat", "grasping",
+                 base="endogaussian-grasping"),
+            Case("physiosplat-rigid-grasping", "physiosplat", "grasping", PHYSIOSPLAT_RIGID,
+                 base="endogaussian-grasping"),
         ),
         metrics=("psnr_tissue", "ssim", "psnr_occluded", "depth_rmse_occluded_mm", "psnr_specular",
                  "depth_rmse_mm", "chamfer_mm", "collisions", "arap_strain_mean",
                  "tool_probability_inside", "tool_probability_3px", "tool_probability_10px",
                  "depth_bias_near_tool_mm", "depth_bias_away_from_tool_mm",
-                 "tissue_depth_bias_near_tool_mm"),
+                 "tissue_depth_bias_near_tool_mm", "jaw_angle_rmse_deg", "hinge_offset_mm",
+                 "psnr_never_seen", "depth_rmse_never_seen_mm", "tool_free_transparent_fraction"),
         baseline="endogaussian"),
 }
 

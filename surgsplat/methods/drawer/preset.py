@@ -11,8 +11,7 @@ from surgsplat.methods.drawer.mesh_anchor import MeshAnchorConfig
 from surgsplat.methods.endogaussian.preset import hexplane_regularisers
 from surgsplat.methods.endogsg.preset import ENDO_GSG_GAMMA, endo_gsg_sdf_losses
 from surgsplat.methods.endogsg.sdf import SDFConfig
-from surgsplat.methods.physiosplat.preset import TOOL_MASK_WEIGHT
-from surgsplat.methods.physiosplat.tool_field import ToolFieldConfig
+from surgsplat.methods.physiosplat.preset import TOOL_MASK_WEIGHT, articulated_tool_field
 from surgsplat.methods.settings import LossWeight
 from surgsplat.model.color_curves import ColorCurvesConfig
 from surgsplat.model.exposure import ExposureConfig
@@ -26,7 +25,7 @@ def drawer() -> MethodConfig:
     return MethodConfig(
         name="drawer",
         components={"anchor": MeshAnchorConfig(), "deformation": HexPlaneConfig(),
-                    "color_curves": ColorCurvesConfig(), "tool": ToolFieldConfig(),
+                    "color_curves": ColorCurvesConfig(), "tool": articulated_tool_field(),
                     "exposure": ExposureConfig(),
                     "sdf": SDFConfig(),
                     "photometric": PhotometricConfig(occlusion_gamma=ENDO_GSG_GAMMA),

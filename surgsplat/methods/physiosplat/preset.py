@@ -1,4 +1,4 @@
-"""The `physiosplat` preset, and the tool field's mask weight that `drawer` keeps."""
+"""The `physiosplat` preset, and the tool field and its mask weight that `drawer` keeps."""
 
 from __future__ import annotations
 
@@ -21,14 +21,21 @@ TOOL_MASK_WEIGHT = 0.1
 """lambda_mask: weight of the tool field's mask loss."""
 
 
+def articulated_tool_field() -> ToolFieldConfig:
+    """The tool field of `physiosplat` and `drawer`: its jaws on a hinge and the tissue no frame
+    shows filled, where the paper's tool is rigid (the A/B: docs/methods/physiosplat.md)."""
+    return ToolFieldConfig(motion="articulated", fill_never_seen=True)
+
+
 def physiosplat() -> MethodConfig:
-    """HexPlane tissue with a volume-preservation loss, the tool field with its mask loss, ARAP
+    """HexPlane tissue with a volume-preservation loss, the articulated tool field with its mask
+    loss, ARAP
     strain and tool-collision losses, a co-located specular lobe on SH0 colour, MAPF point
     fusion."""
     return MethodConfig(
         name="physiosplat",
         components={"deformation": HexPlaneConfig(volume_samples=512),
-                    "color_curves": ColorCurvesConfig(), "tool": ToolFieldConfig(),
+                    "color_curves": ColorCurvesConfig(), "tool": articulated_tool_field(),
                     "exposure": ExposureConfig(), "specular": SpecularConfig(),
                     "biomechanics": BiomechanicsConfig(), "photometric": PhotometricConfig(),
                     "depth": DepthLossConfig()},
@@ -40,6 +47,7 @@ def physiosplat() -> MethodConfig:
         init=InitConfig(fusion="mapf"))
 
 
-PRESET = Preset("PhysioSplat: tool Gaussians with per-frame rigid motion and semantic logits "
-                "beside HexPlane tissue, tool-free rendering, ARAP strain, tool collision and "
-                "volume losses, co-located specular lobe", physiosplat)
+PRESET = Preset("PhysioSplat: tool Gaussians (a shaft and two hinged jaws, posed per frame) "
+                "with semantic logits beside HexPlane tissue, tool-free rendering with never-seen "
+                "tissue filled, ARAP strain, tool collision and volume losses, co-located "
+                "specular lobe", physiosplat)

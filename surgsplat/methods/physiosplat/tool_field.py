@@ -117,8 +117,9 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     motion: Literal["rigid", "articulated"] = "rigid"
     """How the tool Gaussians move: one rigid pose per frame (the paper), or a shaft with two
     jaws turning about a hinge (see the module docstring)."""
-    jaw_lr: float = field(default=2e-3, metadata={"range": "[0, inf)"})
-    """Adam learning rate of the per-frame jaw angles (radians; articulated motion)."""
+    jaw_lr: float = field(default=2e-4, metadata={"range": "[0, inf)"})
+    """Adam learning rate of the per-frame jaw angles (radians; articulated motion); ten times
+    this lets them wander from their set-up estimate (measured: docs/methods/physiosplat.md)."""
     max_observed_points: int = field(default=8000, metadata={"range": "[1, inf)"})
     """At most this many tool pixels per frame (a seeded subsample) enter the set-up's
     articulation estimate."""
