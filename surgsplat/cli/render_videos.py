@@ -18,7 +18,8 @@ from rich.console import Console
 from surgsplat.cli.progress import progress_bar
 from surgsplat.errors import SurgsplatError
 from surgsplat.model.capabilities import UNIFORM
-from surgsplat.pipeline.render import DEFAULT_CHANNELS, write_run_videos
+from surgsplat.model.channels import OBSERVED
+from surgsplat.pipeline.render import DEFAULT_CHANNELS, video_channels, write_run_videos
 from surgsplat.pipeline.run_folders import claim_output_folder, load_run
 from surgsplat.train.run import TrainedRun, run_lock
 
@@ -76,7 +77,8 @@ def render_command(
              "illumination state only. Files are named NAME-relit-SOURCE.mp4.")] = None,
     tool_free: Annotated[bool, typer.Option(
         "--tool-free", help="Render the tissue only, the tool left out (methods with a tool "
-        "field only); default folder RUN/videos_tool_free.")] = False,
+        "field only); default folder RUN/videos_tool_free; with the default --channels, also "
+        "the observed channel of a method that fills tissue no frame shows.")] = False,
 ) -> None:
     """Render RGB, colour-mapped depth, normal maps and input|render|depth side-by-side mp4
     videos (or the --channels chosen)."""
@@ -89,6 +91,8 @@ def render_command(
             raise SurgsplatError(f"--tool-free: method {run.config.name!r} of {run_dir} has no "
                                  "tool field to leave out (train with a method that has one; "
                                  "`surgsplat methods` lists each method's components)")
+        if tool_free and names == DEFAULT_CHANNELS and OBSERVED in video_channels(run.model):
+            names = (*names, OBSERVED)
         folder = out or run_dir / ("videos_tool_free" if tool_free else "videos")
         source = parse_relight(relight, len(run.scene.frames))
         claim_output_folder(folder, run_dir, "--out",
