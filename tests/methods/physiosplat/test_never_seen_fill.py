@@ -46,3 +46,14 @@ def test_never_seen_tissue_is_filled_marked_and_closes_the_hole(grasping_phantom
     seen &= ~region
     assert float((observed[seen] / filled.alpha[seen]).mean()) > 0.95
     assert OBSERVED not in without.extras
+
+
+@pytest.mark.slow
+def test_tool_free_videos_show_the_observed_channel(grasping_phantom, tmp_path):
+    from surgsplat.cli.render_videos import render_command
+
+    scene = load_scene(grasping_phantom)
+    config = apply_values(method_config("physiosplat"), {"train": {"iterations": 1}})
+    Trainer(config, scene, tmp_path / "run").fit()
+    render_command(tmp_path / "run", out=tmp_path / "videos", fps=5.0, tool_free=True)
+    assert (tmp_path / "videos" / f"{OBSERVED}.mp4").stat().st_size > 0
