@@ -27,8 +27,9 @@
   composites exactly as the tissue subset alone.
 - Tissue no training frame shows (not in the paper; `fill_never_seen`, static cameras): the
   pixels a tool covers in every training frame get tissue Gaussians at the depth and colour
-  continued from around them (`data.never_seen`), so that the tool-free view has no hole there.
-  No loss reaches them through the tool's pixels, so they stay the guess they are. Each
+  continued from around them (`data.never_seen`), so that the tool-free view has no hole there;
+  they are rendered FILLED_OPACITY opaque. No loss reaches them through the tool's pixels, so
+  they stay the guess they are. Each
   Gaussian's attribute `observed` (0 for these, 1 for every other, inherited by densification)
   is rendered as the channel `observed` (`model.channels.OBSERVED`) outside training.
 - Hidden tissue learns only where it is seen: no loss of a training step reaches a tissue
@@ -83,6 +84,9 @@ SEMANTIC_KEY = "semantic_logit"
 """Per-Gaussian attribute holding the semantic logit s ([N]; sigmoid(s) = tissue probability)."""
 TOOL_CHANNEL = TOOL_PROBABILITY
 """Rendered channel [H, W, 1]: blended tool probability 1 - sigmoid(s)."""
+FILLED_OPACITY = 0.99
+"""Opacity of the Gaussians that fill never-seen tissue: no loss reaches them through the tool's
+pixels, so they would keep their initial, translucent opacity and leave the hole speckled."""
 OBSERVED_KEY = "observed"
 """Per-Gaussian attribute ([N], fixed): 0 for the Gaussians filling never-seen tissue, else 1
 (`fill_never_seen`)."""
@@ -468,6 +472,9 @@ class ToolField(Component):
         rigid_quats = quaternion_multiply(quat.expand_as(quats), quats)
         column = tool[:, None]
         opacities = state.opacities
+        if self.config.fill_never_seen:  # the fill is a surface: opaque (no loss reaches it)
+            filled = params[OBSERVED_KEY] == 0
+            opacities = torch.where(filled, torch.full_like(opacities, FILLED_OPACITY), opacities)
         if when.tissue_only:
             opacities = torch.where(tool, torch.zeros_like(opacities), opacities)
         return state.replace(means=torch.where(column, rigid_means, state.means),
