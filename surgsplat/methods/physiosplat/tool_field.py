@@ -94,7 +94,8 @@ OBSERVED_KEY = "observed"
 
 @dataclass
 class ToolFieldConfig(ComponentConfig, kind="tool_field"):
-    """Tool Gaussians with per-frame rigid motion, semantic logits and tool-free rendering."""
+    """Tool Gaussians with per-frame rigid or articulated motion, semantic logits and tool-free
+    rendering, optionally with the never-seen tissue filled."""
 
     num_frames: int = field(default=0, metadata={"range": "[0, inf)"})
     """Frames of the clip (one rigid pose each); set from the scene when resolved."""
