@@ -62,7 +62,7 @@ from surgsplat.data.never_seen import FilledTissue, fill_never_seen
 from surgsplat.image.pinhole import backproject
 from surgsplat.methods.physiosplat.tool_joints import (Hinge, InitialJoints, initial_joints,
                                                        jaw_parts, turn_jaws)
-from surgsplat.model.articulation import SHAFT, Articulation, Observation
+from surgsplat.model.articulation import Articulation, Observation
 from surgsplat.model.channels import (OBSERVED, TOOL_PROBABILITY, ChannelDescriptor,
                                       ChannelKind, Colormap)
 from surgsplat.model.capabilities import (DensifyWeighting, GradientWeighting, PointSource,
@@ -465,10 +465,13 @@ class ToolField(Component):
         quat = axis_angle_to_quaternion(rotvec)  # [4]
         params = gaussians.params
         means, quats = params["means"], F.normalize(params["quats"], dim=-1)
-        if bool(self.articulated):
-            hinge = self.hinge()
-            parts = torch.where(tool, jaw_parts(means, hinge), SHAFT)
-            means, quats = turn_jaws(means, quats, parts, jaws - hinge.canonical_angles, hinge)
+        if bool(self.articulated):  # only the tool rows turn: a tenth of the Gaussians
+            hinge, rows = self.hinge(), tool.nonzero()[:, 0]
+            turned_means, turned_quats = turn_jaws(
+                means[rows], quats[rows], jaw_parts(means[rows], hinge),
+                jaws - hinge.canonical_angles, hinge)
+            means = means.index_put((rows,), turned_means)
+            quats = quats.index_put((rows,), turned_quats)
         rigid_means = means @ quaternion_to_matrix(quat).T + translation * self.unit  # [N, 3]
         rigid_quats = quaternion_multiply(quat.expand_as(quats), quats)
         column = tool[:, None]
