@@ -507,6 +507,8 @@ SUITES = {
             Case("physiosplat-edge-band-5px", "physiosplat", "pulling",
                  ("components.tool.edge_band_px=5",)),
             Case("physiosplat-rigid", "physiosplat", "pulling", PHYSIOSPLAT_RIGID),
+            Case("physiosplat-tool-depth", "physiosplat", "pulling",
+                 ("components.depth.tool_pixels=true",)),
             Case("endogaussian-grasping", "endogaussian", "grasping"),
             Case("physiosplat-grasping", "physiosplat", "grasping",
                  base="endogaussian-grasping"),

@@ -103,14 +103,20 @@ class DepthLossConfig(ComponentConfig, kind="depth_loss"):
     occlusion_gamma: float = field(default=0.0, metadata={"range": "[0, inf)"})
     """gamma of the occlusion importance map weighting each pixel (`losses.occlusion`); 0 =
     every tissue pixel weighs 1."""
+    tool_pixels: bool = False
+    """Count the frame's tool pixels too (every pixel of the field of view): for models that
+    render the tool (a tool field), whose tool Gaussians then learn the tool's measured depth.
+    The tissue Gaussians learn nothing from those pixels when the tool field's gradient weights
+    keep them out. The unit of the relative forms stays the tissue's median depth; the
+    occlusion importance map (occlusion_gamma > 0) weighs the tool pixels 0."""
 
     def build(self) -> "DepthLoss":
         return DepthLoss(self)
 
 
 class DepthLoss(Component):
-    """Loss term "depth": the configured depth loss over the frame's tissue pixels with a measured
-    depth; 0 for frames without depth."""
+    """Loss term "depth": the configured depth loss over the frame's tissue pixels (with
+    `tool_pixels`, its field of view) with a measured depth; 0 for frames without depth."""
     phase = Phase.LOSS
 
     def __init__(self, config: DepthLossConfig):
@@ -132,5 +138,6 @@ class DepthLoss(Component):
         if frame.depth is None:  # a constant: no backward through the depth map (~2 ms/step)
             return {"depth": output.depth.new_zeros(())}
         weights = self.importance.weights(frame) if self.config.occlusion_gamma > 0 else None
-        return {"depth": FORMS[self.config.form](output.depth, frame.depth, frame.tissue,
+        counted = frame.fov if self.config.tool_pixels else frame.tissue
+        return {"depth": FORMS[self.config.form](output.depth, frame.depth, counted,
                                                  weights, self.reference(frame))}

@@ -112,3 +112,23 @@ def test_the_component_keeps_each_frames_median_and_gives_the_functions_value(fo
     context = SimpleNamespace(frame=other, output=SimpleNamespace(depth=pred))
     torch.testing.assert_close(component.losses(context, frozenset({"depth"}))["depth"],
                                loss(pred, gt * 2, mask), rtol=0, atol=0)
+
+
+def test_tool_pixels_count_the_tools_measured_depth_in_the_tissues_unit():
+    """With `tool_pixels` an error on the tool pixels enters the term (mean over the field of
+    view, divided by the tissue's median depth); without, it does not."""
+    gt = torch.full((4, 6), 10.0)
+    tool = torch.zeros(4, 6, dtype=torch.bool)
+    tool[:, :2] = True
+    gt[tool] = 5.0  # the tool, nearer than the tissue
+    fov = torch.ones(4, 6, dtype=torch.bool)
+    frame = SimpleNamespace(index=0, depth=gt, tissue=fov & ~tool, fov=fov,
+                            camera=SimpleNamespace(height=4, width=6))
+    rendered = gt.clone()
+    rendered[tool] = 6.0  # 1 too deep on 8 of the 24 pixels
+    context = SimpleNamespace(frame=frame, output=SimpleNamespace(depth=rendered))
+    tissue_only = DepthLoss(DepthLossConfig()).losses(context, frozenset({"depth"}))["depth"]
+    counted = DepthLoss(DepthLossConfig(tool_pixels=True)).losses(context,
+                                                                 frozenset({"depth"}))["depth"]
+    assert tissue_only.item() == 0.0
+    torch.testing.assert_close(counted, torch.tensor(8 / 24 / 10.0), rtol=1e-6, atol=0)
