@@ -509,6 +509,8 @@ SUITES = {
             Case("physiosplat-rigid", "physiosplat", "pulling", PHYSIOSPLAT_RIGID),
             Case("physiosplat-tool-depth", "physiosplat", "pulling",
                  ("components.depth.tool_pixels=true",)),
+            Case("physiosplat-densify-tool", "physiosplat", "pulling",
+                 ("components.tool.densify_tool=true",)),
             Case("endogaussian-grasping", "endogaussian", "grasping"),
             Case("physiosplat-grasping", "physiosplat", "grasping",
                  base="endogaussian-grasping"),

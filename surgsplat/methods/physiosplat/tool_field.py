@@ -36,7 +36,8 @@
   Gaussian through the frame's tool pixels (`gradient_weights`, see `losses`); from the pixels where
   it shows, every Gaussian learns.
 - Densification (`densify_weights`): none where the tool proxy's signed distance is below the
-  margin (tool Gaussians and tissue touching the tool); a tissue Gaussian whose projected centre
+  margin (tool Gaussians and tissue touching the tool; with `densify_tool` the tissue alone); a
+  tissue Gaussian whose projected centre
   lies behind rendered tool (tool probability > 0.5, rendered depth nearer than it) has its
   gradient weighted by omega = exp(-|c - c_adj|_1 / (3 sigma)), its diffuse colour c against
   c_adj, the most recent training observation of that pixel as tissue (a static-view stand-in for
@@ -135,6 +136,10 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     densify_margin: float = field(default=2.0 / PHANTOM_EXTENT_MM, metadata={"range": "[0, 1)"})
     """No densification where the tool proxy's signed distance is below this fraction of the
     scene extent, in [0, 1) (the paper's epsilon, 2 mm on the phantom: 0.0259)."""
+    densify_tool: bool = False
+    """Let the tool Gaussians densify too: the margin then keeps out only the tissue Gaussians
+    touching the tool (the paper's rule read for tissue; by default it also keeps the tool at
+    its initial Gaussians)."""
     occlusion_sigma: float = field(default=0.1, metadata={"range": "(0, inf)"})
     """Colour difference (mean over RGB) at which an occluded Gaussian's weight is 1/e."""
     strain_neighbours: int = field(default=16, metadata={"range": "[1, inf)"})
@@ -531,7 +536,8 @@ class ToolField(Component):
         proxy = self.proxy(state, context.gaussians)
         if proxy is not None:
             margin = self.config.densify_margin * float(self.unit)
-            weights[proxy.sdf(state.means, 2 * margin) < margin] = 0.0
+            near = proxy.sdf(state.means, 2 * margin) < margin
+            weights[near & ~tool if self.config.densify_tool else near] = 0.0
         self._remember_tissue(frame)
         occluded, pixels = self._occluded(context, tool)
         if occluded.any():

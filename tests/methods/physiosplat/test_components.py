@@ -493,3 +493,31 @@ def test_tissue_gradient_weights_ramp_away_from_the_tool_mask(band):
                                             for d in range(1, 10))], dtype=torch.float32)
     assert torch.allclose(weights.weights, expected_row.expand(6, 12), atol=1e-6)
     assert field.gradient_weights(gaussians, FrameTime(1, 0.5)) is None  # not a training render
+
+
+@pytest.mark.parametrize("densify_tool", [False, True])
+def test_densification_near_the_tool_is_kept_from_tissue_and_from_the_tool_unless_asked(
+        densify_tool):
+    """A tissue Gaussian inside the tool proxy gets densification weight 0 either way; the tool
+    Gaussian too by default, and its full weight with `densify_tool`."""
+    means = torch.tensor([[0.0, 0.0, 14.5], [0.0, 0.0, 14.0]])  # tissue, then tool
+    gaussians = GaussianModel.from_points(means, torch.full((2, 3), 0.5),
+                                          GaussianConfig(init_opacity=0.9),
+                                          {SEMANTIC_KEY: torch.tensor([4.0, -4.0])})
+    with torch.no_grad():
+        gaussians.params["log_scales"].fill_(math.log(3.0))
+    field = ToolFieldConfig(num_frames=4, densify_tool=densify_tool).build()
+    with torch.no_grad():
+        field.known[:] = True
+        field.seen[:] = True
+    model = SplatModel(gaussians, {"tool": field})
+    camera = _camera()
+    full = torch.ones(camera.height, camera.width, dtype=torch.bool)
+    frame = Frame(0, 0.0, torch.zeros(camera.height, camera.width, 3), None, False, camera,
+                  tool=full, fov=full)
+    when = FrameTime(0, 0.0, tool_pixels=frame.tool)
+    output, state = model.render(camera, when)
+    context = RenderContext(frame=frame, when=when, camera=camera, output=output, state=state,
+                            gaussians=gaussians, iteration=1)
+    weights = field.densify_weights(context)
+    assert weights.tolist() == [0.0, 1.0 if densify_tool else 0.0]
