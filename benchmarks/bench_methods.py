@@ -193,10 +193,6 @@ SURGSPLAT_WITH_SDF = (
 importance map, at the endogsg preset's values (what the preset had before issue 33's
 leave-one-out measured it)."""
 PHYSIOSPLAT_RIGID = ("components.tool.motion=rigid", "components.tool.fill_never_seen=false")
-TOOL_ALONE = ("components.depth.tool_pixels=true", "components.tool.densify_tool=true",
-              "components.tool.tool_pixels_only=true")
-"""The tool field learning from the tool's pixels alone, its depth included, its mask loss over
-the tool rendered alone, and its Gaussians densifying."""
 """The paper's tool field: one rigid pose per frame, nothing filled where no frame sees the
 tissue (the presets' tool field is articulated and fills it since issue 55)."""
 SURGSPLAT_WITHOUT_PLANAR = ("components.planar=null", "losses.flatten=null", "losses.normal=null",
@@ -518,9 +514,6 @@ SUITES = {
             Case("physiosplat-tool-depth-densify-mask-1", "physiosplat", "pulling",
                  ("components.depth.tool_pixels=true", "components.tool.densify_tool=true",
                   "losses.mask.weight=1.0")),
-            Case("physiosplat-tool-alone", "physiosplat", "pulling", TOOL_ALONE),
-            Case("physiosplat-tool-alone-mask-1", "physiosplat", "pulling",
-                 TOOL_ALONE + ("losses.mask.weight=1.0",)),
             Case("endogaussian-grasping", "endogaussian", "grasping"),
             Case("physiosplat-grasping", "physiosplat", "grasping",
                  base="endogaussian-grasping"),

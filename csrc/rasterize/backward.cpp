@@ -13,11 +13,10 @@
 // are constant per pixel. So a pixel carries two values back to front, its transmittance and
 // this dot product, instead of C + 2 (the colour and alpha behind it).
 //
-// Gradient weights (pixel_weights [G, H, W], weighted_members [N], each Gaussian's group g in
-// 0..G) scale the member Gaussians' gradients per pixel: at pixel p, the own terms (w_i dL/dC and
-// alpha_i dL/dalpha_i) of a Gaussian of group g >= 1 are multiplied by pixel_weights[g - 1, p]
-// (0 drops them, 1 keeps them whole), while the recursion, and so every other Gaussian's
-// gradient, is unchanged; group 0 is not weighted.
+// Gradient weights (pixel_weights, weighted_members) scale the member Gaussians' gradients per
+// pixel: at pixel p, a member's own terms (w_i dL/dC and alpha_i dL/dalpha_i) are multiplied by
+// pixel_weights[p] (0 drops them, 1 keeps them whole), while the recursion, and so every other
+// Gaussian's gradient, is unchanged.
 #include <algorithm>
 #include <memory>
 
@@ -42,15 +41,13 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                         const float* grad_image, const float* grad_alpha,
                         float* grad_means2d, float* grad_conics, float* grad_opacities,
                         float* grad_features, float* abs_grad_means2d,
-                        const float* pixel_weights, const uint8_t* weighted_members,
-                        int groups) {
+                        const float* pixel_weights, const uint8_t* weighted_members) {
     const int tiles = bins.tiles_x * bins.tiles_y;
     const int64_t n = bins.num_gaussians, channels = bins.channels;
     const int64_t drawn = static_cast<int64_t>(bins.splats.size());
     const int64_t stride = kFeatures + channels;
     const int threads = omp_get_max_threads();
     const BandF columns = band_lanes(true), rows = band_lanes(false);
-    const size_t image_pixels = static_cast<size_t>(width) * height;
     // per thread, one gradient slot per drawn Gaussian, in depth order (by rank); each thread
     // zeroes its own slots (in parallel, and on the thread's side of the memory)
     const size_t slots = static_cast<size_t>(drawn) * stride;
@@ -63,8 +60,7 @@ void rasterize_backward(const TileBins& bins, int width, int height,
         std::vector<BandF> grad_f(channels);
         BandF trans[kBands], behind[kBands], grad_a[kBands];
         BandI last[kBands];
-        // [group][band] per lane, the weight there of the gradient of a Gaussian of that group
-        std::vector<BandF> member_weight(static_cast<size_t>(groups) * kBands);
+        BandF member_weight[kBands];  // per lane, the weight of a member's gradient there
         int32_t band_last[kBands];  // per band, the largest last entry: later Gaussians skip it
         // interleaved static schedule: the same tiles go to the same thread on every call, so the
         // per-thread sums, and the gradients, are reproducible
@@ -78,9 +74,8 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                 prefetch_tile_pixels(transmittance, 1, width, height, next_x, next_y);
                 prefetch_tile_pixels(last_entry, 1, width, height, next_x, next_y);
                 prefetch_tile_pixels(grad_alpha, 1, width, height, next_x, next_y);
-                for (int g = 0; g < groups; ++g)
-                    prefetch_tile_pixels(pixel_weights + g * image_pixels, 1, width, height,
-                                         next_x, next_y);
+                if (pixel_weights != nullptr)
+                    prefetch_tile_pixels(pixel_weights, 1, width, height, next_x, next_y);
                 prefetch_tile_pixels(grad_image, channels, width, height, next_x, next_y);
             }
             // the tile's pixels; those outside the image composite nothing and get no gradient
@@ -91,10 +86,10 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                 trans[band] = load_band(transmittance, width, px0, y0, in_columns, in_rows, 1.0f);
                 last[band] = load_band(last_entry, width, px0, y0, in_columns, in_rows, start);
                 grad_a[band] = load_band(grad_alpha, width, px0, y0, in_columns, in_rows, 0.0f);
-                for (int g = 0; g < groups; ++g)
-                    member_weight[g * kBands + band] =
-                        load_band(pixel_weights + g * image_pixels, width, px0, y0, in_columns,
-                                  in_rows, 1.0f);
+                member_weight[band] =
+                    pixel_weights == nullptr
+                        ? BandF::all(1.0f)
+                        : load_band(pixel_weights, width, px0, y0, in_columns, in_rows, 1.0f);
                 behind[band] = BandF::all(0.0f);
                 for (int64_t ch = 0; ch < channels; ++ch) {
                     BandF& grad = grad_in[ch * kBands + band];
@@ -123,9 +118,8 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                 const SplatInTile s(bins.splats[rank], bins.spans[k], px0, py0, columns, rows);
                 const float a = s.a, b = s.b, c = s.c, inv_opacity = 1.0f / s.opacity;
                 const float* feature = bins.features.data() + rank * channels;
-                const int group = groups > 0 ? weighted_members[bins.splats[rank].id] : 0;
-                const BandF* group_weight =
-                    group > 0 ? member_weight.data() + (group - 1) * kBands : nullptr;
+                const bool weighted =
+                    weighted_members != nullptr && weighted_members[bins.splats[rank].id];
                 s.with_reached_registers([&](auto first_register, auto registers) {
                     constexpr int R0 = decltype(first_register)::value;
                     constexpr int N = decltype(registers)::value;
@@ -152,9 +146,8 @@ void rasterize_backward(const TileBins& bins, int width, int height,
                             select(in, t_after * reciprocal(1.0f - alpha), t_after);
                         const RowPart<N> weight = alpha * t_before;
                         // the weight of this Gaussian's own gradient at each lane's pixel
-                        const RowPart<N> learns = group_weight != nullptr
-                                                      ? part<R0, N>(group_weight[band])
-                                                      : RowPart<N>::all(1.0f);
+                        const RowPart<N> learns =
+                            weighted ? part<R0, N>(member_weight[band]) : RowPart<N>::all(1.0f);
                         const RowPart<N> own_weight = weight * learns;
                         // first = f . dL/dC + dL/dA: this Gaussian's own term of dL/dalpha
                         RowPart<N> first = part<R0, N>(grad_a[band]);

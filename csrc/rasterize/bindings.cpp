@@ -1,6 +1,4 @@
 // Python bindings of the tile rasterizer.
-#include <algorithm>
-
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
 
@@ -69,22 +67,14 @@ void backward(const TileBins& bins, In<float> means2d, In<float> conics, In<floa
     expect_size(grad_features, s.n * s.channels, "grad_features");
     expect_size(abs_grad_means2d, 2 * s.n, "abs_grad_means2d");
     const bool weighted = weighted_members.size() > 0;  // no weights: both empty
-    const size_t groups = weighted ? pixel_weights.size() / std::max<size_t>(pixels, 1) : 0;
-    if (weighted && (groups == 0 || groups > 255))
-        throw std::invalid_argument("pixel_weights must hold 1 to 255 [H, W] maps");
-    expect_size(pixel_weights, groups * pixels, "pixel_weights");
+    expect_size(pixel_weights, weighted ? pixels : 0, "pixel_weights");
     expect_size(weighted_members, weighted ? s.n : 0, "weighted_members");
-    if (weighted)
-        for (size_t i = 0; i < s.n; ++i)
-            if (weighted_members.data()[i] > groups)
-                throw std::invalid_argument("weighted_members names a group without a map");
     nb::gil_scoped_release unlocked;
     surgsplat::rasterize_backward(
         bins, width, height, transmittance.data(), last_entry.data(), grad_image.data(),
         grad_alpha.data(), grad_means2d.data(), grad_conics.data(), grad_opacities.data(),
         grad_features.data(), abs_grad_means2d.data(),
-        weighted ? pixel_weights.data() : nullptr, weighted ? weighted_members.data() : nullptr,
-        static_cast<int>(groups));
+        weighted ? pixel_weights.data() : nullptr, weighted ? weighted_members.data() : nullptr);
 }
 
 }  // namespace
@@ -99,9 +89,9 @@ static void bind_rasterize(nb::module_& m) {
         .def_prop_ro("tiles", [](const TileBins& b) { return b.tiles_x * b.tiles_y; });
     m.def("rasterize_forward", &forward, "Bin, sort and composite; returns the tile bins.");
     m.def("rasterize_backward", &backward,
-          "Gradients of the compositing, given its tile bins; pixel_weights [G, H, W] float32 "
-          "scale, per pixel, the gradients of the Gaussians of group weighted_members [N] uint8 "
-          "= g >= 1 by map g - 1 (group 0 unweighted; both empty: no weights).");
+          "Gradients of the compositing, given its tile bins; pixel_weights [H, W] float32 "
+          "scale, per pixel, the gradients of the Gaussians with weighted_members [N] uint8 != 0 "
+          "(both empty: no weights).");
 }
 
 static const OpBinding binding(&bind_rasterize);

@@ -283,14 +283,13 @@ void rasterize_forward(const TileBins& bins, int width, int height, float* image
 
 // Gradients [N, ...] of the inputs' means2d, conics, opacities and features (added to
 // grad_features), and the per-Gaussian sum of |dL/dmean2d|, from the forward's outputs. With
-// `groups` G > 0 of gradient weights, the gradient a Gaussian of group weighted_members [N] = g
-// >= 1 gets from pixel p is scaled by pixel_weights [G, H, W] at (g - 1, p); G = 0: no weights
-// (both may be null).
+// gradient weights (both non-null), the gradient a Gaussian with weighted_members [N] != 0 gets
+// from pixel p is scaled by pixel_weights [H, W] at p.
 void rasterize_backward(const TileBins& bins, int width, int height,
                         const float* transmittance, const int32_t* last_entry,
                         const float* grad_image, const float* grad_alpha,
                         float* grad_means2d, float* grad_conics, float* grad_opacities,
                         float* grad_features, float* abs_grad_means2d,
-                        const float* pixel_weights, const uint8_t* weighted_members, int groups);
+                        const float* pixel_weights, const uint8_t* weighted_members);
 
 }  // namespace surgsplat

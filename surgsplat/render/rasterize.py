@@ -35,10 +35,10 @@ class _NativeRasterize(torch.autograd.Function):
             image.numpy(), transmittance.numpy(), last_entry.numpy())
         ctx.bins, ctx.size, ctx.absgrad = bins, (width, height), absgrad
         ctx.gradient_weights = (torch.empty(0), torch.empty(0, dtype=torch.uint8))
-        if gradient_weights is not None:  # the kernel's form: float32 weights, 1-byte groups
+        if gradient_weights is not None:  # the kernel's form: float32 weights, 1-byte members
             ctx.gradient_weights = (
                 gradient_weights.weights.detach().to(torch.float32).contiguous(),
-                gradient_weights.groups.to(torch.uint8).contiguous())
+                gradient_weights.members.to(torch.uint8).contiguous())
         ctx.save_for_backward(*inputs, transmittance, last_entry)
         return image, 1.0 - transmittance
 

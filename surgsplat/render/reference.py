@@ -39,9 +39,8 @@ def rasterize_reference(means2d: Tensor, conics: Tensor, opacities: Tensor, feat
     norm of the 2-vector) added during backward, the densification signal.
     background [C], when given, is added behind the Gaussians: image + (1 - alpha) background
     (data, as in the native kernel: it gets no gradient).
-    gradient_weights: at pixel p, the alpha and features of a Gaussian of group g >= 1 enter as
-    x.detach() + w_p (x - x.detach()), w_p = weights[g - 1, p]: their value, with w_p times their
-    gradient (pixel_weights.PixelWeights).
+    gradient_weights: at pixel p, a member's alpha and features enter as x.detach() + w_p (x -
+    x.detach()): their value, with w_p times their gradient (pixel_weights.PixelWeights).
     """
     image, alpha = _composite(means2d, conics, opacities, features, depths, radii, width, height,
                               absgrad, gradient_weights)
@@ -74,10 +73,8 @@ def _composite(means2d: Tensor, conics: Tensor, opacities: Tensor, features: Ten
     alpha = torch.where((alpha >= ALPHA_MIN) & (q >= 0), alpha, torch.zeros_like(alpha))
     scale = None  # [M, P] the weight of each (Gaussian, pixel) pair's gradient
     if gradient_weights is not None:
-        groups = gradient_weights.groups[keep].long()  # [M]
-        maps = gradient_weights.weights.reshape(gradient_weights.weights.shape[0], -1)  # [G, P]
-        per_group = torch.cat([torch.ones_like(maps[:1]), maps]).to(alpha)  # [G + 1, P]
-        scale = per_group[groups]  # [M, P]
+        members = gradient_weights.members[keep][:, None]
+        scale = torch.where(members, gradient_weights.weights.reshape(1, -1).to(alpha), 1.0)
         alpha = alpha.detach() + scale * (alpha - alpha.detach())
     after = torch.cumprod(1 - alpha, dim=0)  # [M, P] transmittance after each Gaussian
     before = torch.cat([torch.ones_like(after[:1]), after[:-1]], dim=0)

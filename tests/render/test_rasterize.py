@@ -133,30 +133,28 @@ def test_background_matches_reference(native_isa, scene_factory, num, opacity, s
 
 
 def random_weights(scene, seed, binary):
-    """Gradient weights of two groups, each about a third of the Gaussians (the rest unweighted):
-    group 1 weighted 0 on a disc of about a third of the pixels and 1 elsewhere (binary, a gate)
-    or uniformly in [0, 1] on every pixel, group 2 by one minus that."""
+    """Gradient weights of about half the Gaussians: 0 on a disc of about a third of the pixels
+    and 1 elsewhere (binary, a gate), or uniform in [0, 1] on every pixel."""
     generator = torch.Generator().manual_seed(seed)
-    groups = torch.randint(0, 3, (scene["means2d"].shape[0],), generator=generator)
+    members = torch.rand(scene["means2d"].shape[0], generator=generator) < 0.5
     if not binary:
-        first = torch.rand((scene["height"], scene["width"]), generator=generator)
-    else:
-        y, x = torch.meshgrid(torch.arange(scene["height"]), torch.arange(scene["width"]),
-                              indexing="ij")
-        centre_x, centre_y = scene["width"] * 0.4, scene["height"] * 0.6
-        disc = (x - centre_x) ** 2 + (y - centre_y) ** 2 < 0.1 * scene["width"] * scene["height"]
-        first = (~disc).float()
-    return PixelWeights(torch.stack([first, 1.0 - first]), groups.to(torch.uint8))
+        shape = (scene["height"], scene["width"])
+        return PixelWeights(torch.rand(shape, generator=generator), members)
+    y, x = torch.meshgrid(torch.arange(scene["height"]), torch.arange(scene["width"]),
+                          indexing="ij")
+    centre_x, centre_y = scene["width"] * 0.4, scene["height"] * 0.6
+    disc = (x - centre_x) ** 2 + (y - centre_y) ** 2 < 0.1 * scene["width"] * scene["height"]
+    return PixelWeights((~disc).float(), members)
 
 
 @pytest.mark.parametrize("binary", [True, False], ids=["gate", "continuous"])
 @pytest.mark.parametrize("num,width,height,channels", [(300, 37, 29, 3), (400, 48, 40, 9)])
 def test_weighted_gradients_match_reference(native_isa, scene_factory, num, width, height,
                                             channels, binary):
-    """With PixelWeights of two groups: native == reference in every gradient and absgrad
-    (forward unchanged); in both, the gradient of a Gaussian of group g is that of the loss
-    with each pixel's term weighted by map g - 1, and an unweighted one's is that of the whole
-    loss, each to 1e-4 relative L2 (float32)."""
+    """With PixelWeights: native == reference in every gradient and absgrad (forward unchanged);
+    in both, a member's gradient is that of the loss with each pixel's term weighted by its
+    weight, and every other Gaussian's is that of the whole loss, each to 1e-4 relative L2
+    (float32)."""
     scene = scene_factory(num, width, height, channels=channels, seed=num, scale=0.3)
     weights = random_weights(scene, num, binary)
     background = torch.linspace(0.2, 0.9, channels)
@@ -167,37 +165,25 @@ def test_weighted_gradients_match_reference(native_isa, scene_factory, num, widt
     for name in DIFFERENTIABLE:
         assert relative_error(native[2][name], reference[2][name]) < 1e-4, name
     assert relative_error(native[3], reference[3]) < 1e-4
-    unweighted = weights.groups == 0
+    weighted_loss = run(scene, "native", background=background, pixel_weights=weights.weights)
+    members = weights.members
     for name in DIFFERENTIABLE:
-        assert relative_error(native[2][name][unweighted], plain[2][name][unweighted]) < 1e-4
-    for group in (1, 2):
-        members = weights.groups == group
-        weighted_loss = run(scene, "native", background=background,
-                            pixel_weights=weights.weights[group - 1])
-        for name in DIFFERENTIABLE:
-            weighted = native[2][name]
-            assert relative_error(weighted[members], weighted_loss[2][name][members]) < 1e-4
-            # the weights matter: the members' gradients differ from the unweighted ones
-            assert relative_error(weighted[members], plain[2][name][members]) > 0.05, name
-
-
-def test_one_group_of_members_is_the_group_of_its_map():
-    members = torch.tensor([True, False, True])
-    weights = PixelWeights.of_members(torch.rand(4, 5), members)
-    assert weights.weights.shape == (1, 4, 5) and weights.groups.tolist() == [1, 0, 1]
+        weighted = native[2][name]
+        assert relative_error(weighted[members], weighted_loss[2][name][members]) < 1e-4, name
+        assert relative_error(weighted[~members], plain[2][name][~members]) < 1e-4, name
+        # the weights matter: the members' gradients differ from the unweighted ones
+        assert relative_error(weighted[members], plain[2][name][members]) > 0.05, name
 
 
 def test_gradient_weights_are_checked(scene_factory):
     scene = scene_factory(10, 16, 16)
-    groups = torch.zeros(10, dtype=torch.uint8)
+    members = torch.zeros(10, dtype=torch.bool)
     with pytest.raises(ValueError, match="gradient weights must be"):
-        run(scene, "auto", weights=PixelWeights(torch.ones(1, 16, 15), groups))
-    with pytest.raises(ValueError, match="must be float and their groups integer"):
-        run(scene, "auto", weights=PixelWeights(torch.ones(1, 16, 16), groups.bool()))
-    with pytest.raises(ValueError, match=r"groups must lie in \[0, 1\]"):
-        run(scene, "auto", weights=PixelWeights(torch.ones(1, 16, 16), groups + 2))
+        run(scene, "auto", weights=PixelWeights(torch.ones(16, 15), members))
+    with pytest.raises(ValueError, match="must be float and their members bool"):
+        run(scene, "auto", weights=PixelWeights(torch.ones(16, 16), members.float()))
     with pytest.raises(ValueError, match=r"must lie in \[0, 1\]"):
-        run(scene, "auto", weights=PixelWeights(torch.full((1, 16, 16), 1.5), groups))
+        run(scene, "auto", weights=PixelWeights(torch.full((16, 16), 1.5), members))
 
 
 def test_background_shape_is_checked(scene_factory):

@@ -77,7 +77,6 @@ from surgsplat.model.physics import (PHANTOM_EXTENT_MM, ToolProxy, arap_strain, 
                                      tool_proxy)
 from surgsplat.model.state import GaussianState
 from surgsplat.render.pixel_weights import PixelWeights
-from surgsplat.render.render import render
 from surgsplat.render.rotation import (axis_angle_to_quaternion, quaternion_multiply,
                                        quaternion_to_matrix)
 from surgsplat.render.sh import SH_C0
@@ -149,11 +148,6 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     """Add tissue Gaussians where a tool covers the same pixels in every training frame (static
     camera), at the depth and colour continued from around them, and render the `observed`
     channel (see the module docstring)."""
-    tool_pixels_only: bool = False
-    """The tool Gaussians learn from the frame's tool pixels alone, as the tissue Gaussians learn
-    from the others: no tissue colour or depth reaches the tool's rim where it spills over
-    tissue. The mask loss then compares a render of the tool Gaussians alone (their coverage)
-    with the mask, which alone decides the tool's boundary (see `losses`)."""
     edge_band_px: float = field(default=0.0, metadata={"range": "[0, inf)"})
     """Tissue Gaussians learn from the tissue pixels within this distance (pixels) of the
     frame's tool mask with a gradient weight rising linearly from 0 at the mask to 1 at this
@@ -447,14 +441,10 @@ class ToolField(Component):
     def gradient_weights(self, gaussians: GaussianModel, when: FrameTime) -> PixelWeights | None:
         """A training render keeps the tissue Gaussians from the gradients of the frame's tool
         pixels, weight 0 there and 1 elsewhere (`losses` says why); the tool Gaussians learn
-        from every pixel, or with `tool_pixels_only` from the tool pixels alone."""
+        from every pixel."""
         if when.tool_pixels is None:
             return None
-        tissue = ~self.tool_members(gaussians)
-        if not self.config.tool_pixels_only:
-            return PixelWeights.of_members(self._tissue_weights_of(when), tissue)
-        maps = torch.stack([self._tissue_weights_of(when), when.tool_pixels.float()])
-        return PixelWeights(maps, torch.where(tissue, 1, 2).to(torch.uint8))
+        return PixelWeights(self._tissue_weights_of(when), ~self.tool_members(gaussians))
 
     def _tissue_weights_of(self, when: FrameTime) -> Tensor:
         """[H, W] the tissue Gaussians' gradient weights in a training render at `when`: 0 on
@@ -532,30 +522,10 @@ class ToolField(Component):
           it out from behind the tool and shrink it.
         The hidden tissue learns from the pixels where it shows around the tool, and its
         position from the biomechanical energies, which act on the state, not through the
-        render.
-        With `tool_pixels_only` the tool Gaussians learn nothing from tissue pixels either, and
-        the mask loss is over a render of the tool Gaussians alone (`_tool_alone`): the tool's
-        coverage against the mask, on every pixel of the field of view."""
+        render."""
         frame = context.frame
-        if self.config.tool_pixels_only:
-            probability = self._tool_alone(context)
-        else:
-            probability = context.output.extras[TOOL_CHANNEL][..., 0]
-        probability = probability.clamp(1e-4, 1.0 - 1e-4)
+        probability = context.output.extras[TOOL_CHANNEL][..., 0].clamp(1e-4, 1.0 - 1e-4)
         return {"mask": masked_binary_cross_entropy(probability, frame.tool, frame.fov)}
-
-    def _tool_alone(self, context: RenderContext) -> Tensor:
-        """[H, W] the tool probability 1 - sigmoid(s) of the tool Gaussians alone, composited
-        in the frame's camera: the tool's coverage, which the mask loss of `tool_pixels_only`
-        compares with the mask on every pixel (the training render's gradient weights keep the
-        tool from the tissue pixels)."""
-        state, camera = context.state, context.camera
-        tool = self.tool_members(context.gaussians)
-        probability = 1.0 - torch.sigmoid(context.gaussians.params[SEMANTIC_KEY][tool])  # [T]
-        output = render(state.means[tool], state.scales[tool], state.quats[tool],
-                        state.opacities[tool], probability[:, None].expand(-1, 3), camera.K,
-                        camera.width, camera.height, world_to_camera=camera.world_to_camera)
-        return output.rgb[..., 0]
 
     # ---- densification ----
     @torch.no_grad()
