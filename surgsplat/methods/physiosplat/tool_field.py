@@ -42,8 +42,6 @@
   gradient weighted by omega = exp(-|c - c_adj|_1 / (3 sigma)), its diffuse colour c against
   c_adj, the most recent training observation of that pixel as tissue (a static-view stand-in for
   the nearest unoccluded frame).
-- With `max_footprint_px` the tool Gaussians' scales are capped after every step at that many
-  pixels of the reference frame, at the median depth of its tool pixels.
 - Diagnostics at test frames: `collisions` (tissue Gaussians inside the tool proxy, summed over
   test frames) and `arap_strain_mean` (Eq. 4 per tissue Gaussian over a fresh canonical 16-NN
   graph, averaged; scene units squared).
@@ -52,7 +50,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -143,10 +140,6 @@ class ToolFieldConfig(ComponentConfig, kind="tool_field"):
     """Let the tool Gaussians densify too: the margin then keeps out only the tissue Gaussians
     touching the tool (the paper's rule read for tissue; by default it also keeps the tool at
     its initial Gaussians)."""
-    max_footprint_px: float = field(default=0.0, metadata={"range": "[0, inf)"})
-    """Cap every tool Gaussian's scales at this many pixels of the reference frame (at the
-    median depth of its tool pixels, after each step), so that the rendered tool's edge is no
-    softer than that; 0: no cap."""
     occlusion_sigma: float = field(default=0.1, metadata={"range": "(0, inf)"})
     """Colour difference (mean over RGB) at which an occluded Gaussian's weight is 1/e."""
     strain_neighbours: int = field(default=16, metadata={"range": "[1, inf)"})
@@ -192,7 +185,6 @@ class ToolField(Component):
         self.register_buffer("hinge_forward", torch.tensor([1.0, 0.0, 0.0]))
         self.register_buffer("canonical_jaws", torch.zeros(2))
         self.register_buffer("unit", torch.ones(()))
-        self.register_buffer("max_scale", torch.zeros(()))  # max_footprint_px in scene units
         self.register_buffer("known", torch.zeros(frames, dtype=torch.bool))
         self.register_buffer("seen", torch.zeros(frames, dtype=torch.bool))
         # [H, W, 3] the latest training observation of each pixel as tissue (densify_weights);
@@ -220,11 +212,6 @@ class ToolField(Component):
             keep = torch.randperm(means.shape[0], generator=generator)[:self.config.max_points]
             means, colors = means[keep], colors[keep]
         self._reference = (means, colors)
-        if self.config.max_footprint_px > 0:
-            frame = next(f for f in frames if f.index == reference)
-            tool_depth = depths[reference][frame.tool & (depths[reference] > 0)].median()
-            focal = float(frame.camera.K[0, 0])
-            self.max_scale.fill_(self.config.max_footprint_px * float(tool_depth) / focal)
         self._register_poses(means, {f.index: f for f in frames}, clouds, reference)
         if self.config.fill_never_seen:
             filled = fill_never_seen(frames, depths)
@@ -232,14 +219,6 @@ class ToolField(Component):
                 self._fill = self._fill_points(filled, frames[0].camera)
         if self.config.motion == "articulated":
             self._articulate(means, frames, depths, reference)
-
-    @torch.no_grad()
-    def after_step(self, gaussians: GaussianModel, iteration: int) -> None:
-        """The tool Gaussians' scales capped at max_scale (max_footprint_px)."""
-        if float(self.max_scale) > 0:
-            tool = self.tool_members(gaussians)
-            log_scales = gaussians.params["log_scales"]
-            log_scales[tool] = log_scales[tool].clamp(max=math.log(float(self.max_scale)))
 
     @torch.no_grad()
     def _articulate(self, model: Tensor, frames: list, depths: dict, reference: int) -> None:
@@ -457,8 +436,6 @@ class ToolField(Component):
         # start from no observation, as a new run does
         key = prefix + "last_tissue_image"
         self.last_tissue_image = torch.empty_like(state_dict.setdefault(key, torch.zeros(0, 0, 3)))
-        # checkpoints written before the scale cap existed had none
-        state_dict.setdefault(prefix + "max_scale", torch.zeros(()))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def gradient_weights(self, gaussians: GaussianModel, when: FrameTime) -> PixelWeights | None:

@@ -522,16 +522,3 @@ def test_densification_near_the_tool_is_kept_from_tissue_and_from_the_tool_unles
     weights = field.densify_weights(context)
     assert weights.tolist() == [0.0, 1.0 if densify_tool else 0.0]
 
-
-def test_the_footprint_cap_limits_tool_scales_alone():
-    """after_step with a scale cap: tool Gaussians' scales no larger than it, tissue's kept."""
-    gaussians = _gaussians()
-    with torch.no_grad():
-        gaussians.params["log_scales"].fill_(math.log(2.0))
-    field = _tool_field()
-    field.max_scale.fill_(0.5)
-    field.after_step(gaussians, 1)
-    scales = gaussians.params["log_scales"].exp()
-    tool = gaussians.params[SEMANTIC_KEY] < 0
-    assert torch.allclose(scales[tool], torch.full_like(scales[tool], 0.5))
-    assert torch.allclose(scales[~tool], torch.full_like(scales[~tool], 2.0))
