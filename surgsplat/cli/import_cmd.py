@@ -123,6 +123,12 @@ def import_command(
         help="Find the tools (grey metal, black plastic) in every frame automatically, for "
              "video without --masks; scene.json records that the masks are automatic.")
     ] = ImportConfig.auto_tool_masks,
+    tool_prompts: Annotated[Path | None, typer.Option(
+        help='Tool masks from clicks: a JSON list of {"frame": INDEX, "tool": [[x, y], ...], '
+             '"tissue": [[x, y], ...]}, INDEX the position among the imported frames, x, y '
+             "pixels of the source frame; one click on each tool of one frame is often "
+             "enough. The masks of every frame follow from them; scene.json records them.")
+    ] = None,
     tool_segmenter: Annotated[Path | None, typer.Option(
         help="ONNX tool segmenter (MODEL.onnx) whose per-pixel tool probability gives the tool "
              "masks, inside the field of view; scene.json records the model. " + CONTRACT
@@ -263,7 +269,7 @@ def import_config(options: dict[str, Any]) -> ImportConfig:
         pattern=o.pattern, masks=o.masks, mask_pattern=o.mask_pattern,
         tool_labels=parse_labels(o.tool_labels), mask_match=o.mask_match,
         allow_missing_masks=o.allow_missing_masks, auto_tool_masks=o.auto_tool_masks,
-        tool_segmenter=o.tool_segmenter, segmenter=ToolSegmenterConfig(
+        tool_prompts=o.tool_prompts, tool_segmenter=o.tool_segmenter, segmenter=ToolSegmenterConfig(
             input=model_input(o.tool_segmenter_input, o.tool_segmenter_multiple,
                               o.tool_segmenter_mean, o.tool_segmenter_std, o.model_batch,
                               "--tool-segmenter"),

@@ -55,6 +55,9 @@ from surgsplat.data.layout import (MAX_FRAME_PIXELS, Intrinsics, SceneMeta, Scen
 from surgsplat.data.learned_priors import (DepthNetworkConfig, ToolSegmenterConfig,
                                            model_tool_masks, network_depth)
 from surgsplat.data.onnx_models import OnnxModel
+from surgsplat.data.prompted_masks import (PROMPTED_CONFIDENCE_MEANING, PromptConfig,
+                                           ToolPrompt, click_disk, prompted_tool_masks,
+                                           read_prompts, seed_mask)
 from surgsplat.data.scene import (CLASS_ID_HINT, MIN_SIZE, check_tissue_visible,
                                   read_tool_mask)
 from surgsplat.data.sfm_poses import SfmConfig, SfmWorkspace, require_pycolmap
@@ -114,6 +117,11 @@ class ImportConfig:
     """Find the tools in every frame with the classical segmenter (instead of `masks`)."""
     auto_masks: AutoMaskConfig = field(default_factory=AutoMaskConfig)
     """Parameters of the automatic tool segmenter."""
+    tool_prompts: Path | None = None
+    """JSON file of clicks on tools (and tissue) from which every frame's tool mask follows
+    (`surgsplat.data.prompted_masks`); None = none."""
+    prompts: PromptConfig = field(default_factory=PromptConfig)
+    """How the clicks become masks and are carried through the clip."""
     tool_segmenter: Path | None = None
     """ONNX tool segmenter whose per-pixel tool probability gives the tool masks; None = none."""
     segmenter: ToolSegmenterConfig = field(default_factory=ToolSegmenterConfig)
@@ -192,14 +200,17 @@ class ImportConfig:
             raise SurgsplatError("--tool-labels, --mask-pattern and --allow-missing-masks need "
                                  "--masks")
         if self.auto_tool_masks:
-            if self.masks is not None:
-                raise SurgsplatError("give either --masks or --auto-tool-masks, not both")
             self.auto_masks.validate()
+        sources = [name for name, given in (
+            ("--masks", self.masks is not None), ("--auto-tool-masks", self.auto_tool_masks),
+            ("--tool-prompts", self.tool_prompts is not None),
+            ("--tool-segmenter", self.tool_segmenter is not None)) if given]
+        if len(sources) > 1:
+            raise SurgsplatError(f"give one source of tool masks, not {' and '.join(sources)}")
         if self.tool_segmenter is not None:
-            if self.masks is not None or self.auto_tool_masks:
-                raise SurgsplatError("give one of --masks, --auto-tool-masks and "
-                                     "--tool-segmenter, not several")
             self.segmenter.validate()
+        if self.tool_prompts is not None:
+            self.prompts.validate()
         if self.tool_labels is not None and (
                 not self.tool_labels or not all(0 <= v <= 65535 for v in self.tool_labels)):
             raise SurgsplatError(f"--tool-labels must list class IDs in 0..65535, got "
@@ -345,6 +356,7 @@ class _Plan:
     fov: FovEstimate | None  # None = not searched
     tool_model: OnnxModel | None  # the ONNX tool segmenter, opened and checked
     depth_model: OnnxModel | None  # the ONNX depth network, opened and checked
+    prompts: list[ToolPrompt] | None  # clicks of --tool-prompts, checked; None = none
 
 
 def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
@@ -383,8 +395,27 @@ def _plan(source: Path, config: ImportConfig, report: Progress) -> _Plan:
     depth_model = (OnnxModel(config.depth_model, config.depth_network.input, out_size)
                    if config.depth_model is not None else None)
     fov = _find_fov(frames, selected, fit, config.fov, report) if config.fov_mask else None
+    prompts = None
+    if config.tool_prompts is not None:
+        prompts = read_prompts(config.tool_prompts, len(selected), source_size)
+        _check_clicks_in_view(config.tool_prompts, prompts, fit, fov, config.prompts)
     return _Plan(frames, right, selected, dropped, mask_of, fit, intrinsics, camera_note, fov,
-                 tool_model, depth_model)
+                 tool_model, depth_model, prompts)
+
+
+def _check_clicks_in_view(path: Path, prompts: list[ToolPrompt], fit: _Fitter,
+                          fov: FovEstimate | None, config: PromptConfig) -> None:
+    """DataError naming the first click whose disk, as imported, misses the field of view."""
+    if fov is None or fov.kind == "full":
+        return
+    for prompt in prompts:
+        for kind in ("tool", "tissue"):
+            for point in getattr(prompt, kind):
+                disk = fit.mask(click_disk(point, fit.source_size, config.click_radius), path)
+                if not (disk & fov.inside).any():
+                    raise DataError(path, f"entry for frame {prompt.frame}: {kind} point "
+                                          f"[{point[0]:g}, {point[1]:g}] lies outside the field "
+                                          "of view")
 
 
 def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progress) -> Path:
@@ -412,9 +443,7 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
     sfm = SfmWorkspace(plan.intrinsics, config.sfm) if config.poses == "sfm" else None
     if config.disparity_only:
         (out_dir / DISPARITY_DIR).mkdir()
-    fitted = ((index, fit(image, frames.frame_path(index), frames.frame_label(index)),
-               right_image) for index, image, right_image in
-              _read_pairs(frames, right, plan.selected))
+    fitted = _fitted_frames(plan)
     inside = plan.fov.inside if plan.fov is not None else None
     automatic = learned_depth = itertools.repeat(None)
     confidences: list[float] = []
@@ -425,6 +454,9 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
         automatic = _recording_confidence(
             auto_tool_masks((image for _, image, _ in ahead), inside, config.auto_masks),
             confidences)
+    if plan.prompts is not None:
+        fitted, ahead = itertools.tee(fitted)
+        automatic = _prompted_masks(plan, config, inside, ahead, confidences, report)
     if plan.tool_model is not None:
         fitted, ahead = itertools.tee(fitted)
         automatic = model_tool_masks(
@@ -484,6 +516,37 @@ def _write_scene(plan: _Plan, out_dir: Path, config: ImportConfig, report: Progr
     return writer.finish()
 
 
+def _fitted_frames(plan: _Plan, with_right: bool = True
+                   ) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+    """(source index, frame at the output size, right frame as read or None) of the selected
+    frames, in order; the right frames only `with_right`."""
+    frames, fit = plan.frames, plan.fit
+    right = plan.right if with_right else None
+    for index, image, right_image in _read_pairs(frames, right, plan.selected):
+        yield index, fit(image, frames.frame_path(index), frames.frame_label(index)), right_image
+
+
+def _prompted_masks(plan: _Plan, config: ImportConfig, inside: np.ndarray | None,
+                    fitted: Iterator[tuple[int, np.ndarray, np.ndarray | None]],
+                    confidences: list[float], report: Progress) -> Iterator[np.ndarray]:
+    """The tool masks (bool [H, W]) of the frames `fitted` yields, from the clicks of
+    --tool-prompts: a first pass over the clip decides them at the working size, then each is
+    brought to its frame's size as `fitted` yields the frame. Appends the confidences."""
+    assert plan.prompts is not None and config.tool_prompts is not None
+    fit, radius = plan.fit, config.prompts.click_radius
+    seeds = [(prompt.frame,
+              fit.mask(seed_mask(prompt, "tool", fit.source_size, radius), config.tool_prompts),
+              fit.mask(seed_mask(prompt, "tissue", fit.source_size, radius),
+                       config.tool_prompts)) for prompt in plan.prompts]
+    decided = prompted_tool_masks(
+        (image for _, image, _ in _fitted_frames(plan, with_right=False)), inside, seeds,
+        config.prompts,
+        lambda done, total: report("tool prompts", done, total))
+    for result, (_, image, _) in zip(decided, fitted):
+        confidences.append(result.confidence)
+        yield result.at_frame_size(image, inside, config.prompts)
+
+
 @dataclass
 class _DerivedProduct:
     """A product that import derives for every frame (depth, disparity or tool masks), with
@@ -530,6 +593,10 @@ class _DerivedProducts:
             products.masks = _DerivedProduct(
                 plan.frames.path, f"shows no tool to the automatic tool segmenter in any of "
                 f"its {count} frames; import it without --auto-tool-masks")
+        elif config.tool_prompts is not None:
+            products.masks = _DerivedProduct(
+                config.tool_prompts, f"gives no tool pixel in any of the {count} frames: do "
+                "its tool points lie on the tools?")
         if config.right is not None:
             matched = _DerivedProduct(
                 config.right, f"matches no pixel of {plan.frames.path} in any of the {count} "
@@ -713,6 +780,13 @@ def _provenance(plan: _Plan, config: ImportConfig, confidences: list[float]) -> 
                           "config": config.auto_masks.describe(),
                           "confidence": [round(value, 4) for value in confidences],
                           "confidence_meaning": CONFIDENCE_MEANING}
+    if plan.prompts is not None:
+        extra["masks"] = {"automatic": False, "segmenter": "surgsplat.data.prompted_masks",
+                          "prompts_file": str(config.tool_prompts.resolve()),
+                          "prompts": [prompt.describe() for prompt in plan.prompts],
+                          "config": config.prompts.describe(),
+                          "confidence": [round(value, 4) for value in confidences],
+                          "confidence_meaning": PROMPTED_CONFIDENCE_MEANING}
     if plan.tool_model is not None:
         extra["masks"] = {"automatic": True, "segmenter": "onnx",
                           "model": str(plan.tool_model.path.resolve()),

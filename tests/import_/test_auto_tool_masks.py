@@ -118,7 +118,7 @@ def test_mask_upsampled_to_the_frame_moves_onto_its_edges():
     coarse = np.zeros((30, 100), bool)
     coarse[:, 49:] = True
     for radius, first_column in ((2.0, 99), (0.0, 98)):
-        mask = snap_to_edges(coarse, guide, AutoMaskConfig(edge_radius=radius))
+        mask = snap_to_edges(coarse, guide, radius, AutoMaskConfig().edge_eps)
         assert mask[:, first_column:].all() and not mask[:, :first_column].any(), radius
 
 
@@ -218,7 +218,7 @@ def test_bad_confidence_in_scene_json_is_one_clear_error(tool_video: Path, tmp_p
 
 
 def test_auto_masks_and_given_masks_exclude_each_other(tool_video: Path, tmp_path: Path):
-    with pytest.raises(SurgsplatError, match="either --masks or --auto-tool-masks"):
+    with pytest.raises(SurgsplatError, match="give one source of tool masks, not --masks and --auto-tool-masks"):
         import_scene(tool_video, tmp_path / "s",
                      ImportConfig(auto_tool_masks=True, masks=tool_video))
 

@@ -267,7 +267,8 @@ def test_missing_onnxruntime_says_how_to_install_it(tmp_path: Path, monkeypatch)
 
 
 def test_import_options_are_checked(video: Path, tmp_path: Path):
-    cases = ((ImportConfig(tool_segmenter=video, auto_tool_masks=True), "give one of --masks"),
+    cases = ((ImportConfig(tool_segmenter=video, auto_tool_masks=True),
+              "give one source of tool masks, not --auto-tool-masks and --tool-segmenter"),
              (ImportConfig(tool_segmenter=video, segmenter=ToolSegmenterConfig(threshold=1.0)),
               r"threshold must be in \(0, 1\)"),
              (ImportConfig(depth="depth.onnx", depth_network=DepthNetworkConfig(output="disp")),
