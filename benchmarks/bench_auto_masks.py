@@ -21,6 +21,18 @@ high-variation light, and the cutting motion seen by a moving camera with anothe
 tool-free left frame of the SCARED sample (`tool_free`), where every marked pixel is a false
 alarm: its share of the field of view.
 
+Tool masks from clicks (`surgsplat import --tool-prompts`, section `prompted`): every clip
+above with tools, and the drawn hard cases of `hard_tool_clips` (dark on dark, white on pale, a
+textured metal grasper filling a third of the view), segmented with 0 clicks (the automatic
+segmenter), 1 and 3 clicks per tool. A script places the clicks from the labels
+(`label_clicks`): 1 click = on the frame where the tools are largest, one click on each tool
+(each connected part of the labels of at least 0.2 % of the frame) at its point farthest from
+its boundary; 3 clicks = the same on the frame where the tools are largest in each third of the
+clip; "1 + a tissue click" adds to the 1-click prompts one tissue click where a person checking
+the preview would, at the centre of the largest false alarm (`corrected`). IoU is pooled over
+all frames; seconds per frame are those of the whole pass (flow,
+region model, graph cuts, edge snapping) at the clip's size.
+
 With --train-iters, each clip of --train-on (cholecseg8k, phantom) is also trained three times:
 without masks, with the automatic masks and with the true masks (the reference of perfect
 masks). CholecSeg8k is imported at half size, without masks, with --auto-tool-masks and with
@@ -47,10 +59,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_render import write_report  # noqa: E402
 
+from hard_tool_clips import KINDS, hard_clip  # noqa: E402
+
 from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks  # noqa: E402
 from surgsplat.data.fov_mask import estimate_fov  # noqa: E402
 from surgsplat.data.frames_source import name_numbers  # noqa: E402
 from surgsplat.data.layout import IMAGES_DIR, MASKS_DIR  # noqa: E402
+from surgsplat.data.prompted_masks import (  # noqa: E402
+    PromptConfig, ToolPrompt, farthest_inside, prompted_tool_masks, seed_mask)
 from surgsplat.data.scene import load_scene, read_image, read_tool_mask  # noqa: E402
 from surgsplat.errors import DataError  # noqa: E402
 from surgsplat.eval.run_metrics import EvalOptions, evaluate_run  # noqa: E402
@@ -183,6 +199,107 @@ def score_clip(clip: Clip, splits: dict[str, range], config: AutoMaskConfig,
             row["iou"] for row in per_frame if row["split"] == split)}
     return report | {"per_frame": per_frame, "seconds_per_frame": seconds}, \
         [result.mask for result in results]
+
+
+def label_clicks(truths: list[np.ndarray], clicks: int) -> list[ToolPrompt]:
+    """The prompts a script places from the labels (bool [H, W] per frame): `clicks` (1 or 3)
+    frames, each the frame where the tools are largest in its share of the clip, with one
+    click per tool (connected part of at least 0.2 % of the frame) at its point farthest from
+    its boundary."""
+    areas = [int(truth.sum()) for truth in truths]
+    bounds = np.linspace(0, len(truths), clicks + 1).round().astype(int)
+    prompts = []
+    for start, stop in zip(bounds[:-1], bounds[1:]):
+        frame = int(start) + int(np.argmax(areas[start:stop]))
+        if areas[frame] == 0:
+            continue
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(
+            truths[frame].astype(np.uint8), connectivity=8)
+        least = 0.002 * truths[frame].size
+        points = tuple(farthest_inside(labels == part) for part in range(1, count)
+                       if stats[part, cv2.CC_STAT_AREA] >= least)
+        if points:
+            prompts.append(ToolPrompt(frame, points))
+    return prompts
+
+
+def score_prompted(clip: Clip, prompts: list[ToolPrompt]) -> tuple[dict, list[np.ndarray]]:
+    """IoU (pooled over the clip's frames) of the masks from `prompts`, the lowest frame IoU,
+    the prompts, and seconds per frame of the whole pass; and the masks."""
+    size = clip.images[0].shape[:2]
+    radius = PromptConfig().click_radius
+    seeds = [(prompt.frame, seed_mask(prompt, "tool", size, radius),
+              seed_mask(prompt, "tissue", size, radius)) for prompt in prompts]
+    fov = estimate_fov(clip.images).inside
+    started = time.perf_counter()
+    results = prompted_tool_masks(clip.images, fov, seeds)
+    masks = [result.at_frame_size(image, fov, PromptConfig())
+             for result, image in zip(results, clip.images)]
+    seconds = (time.perf_counter() - started) / len(clip.images)
+    tallies = [counts(mask, truth, scored)
+               for mask, truth, scored in zip(masks, clip.truths, clip.scored)]
+    return {**scores(sum(tallies)),
+            "frame_iou_min": min(scores(tally)["iou"] for tally in tallies),
+            "prompts": [prompt.describe() for prompt in prompts],
+            "seconds_per_frame": seconds}, masks
+
+
+def corrected(prompts: list[ToolPrompt], masks: list[np.ndarray], clip: Clip
+              ) -> list[ToolPrompt]:
+    """`prompts` with one tissue click added where a person looking at the preview would: on
+    the frame with the largest false alarm, at the point of it farthest from its boundary (on
+    that frame's prompt, or a new one). Unchanged when there is no false alarm."""
+    false_alarms = [mask & ~truth & scored
+                    for mask, truth, scored in zip(masks, clip.truths, clip.scored)]
+    frame = int(np.argmax([wrong.sum() for wrong in false_alarms]))
+    if not false_alarms[frame].any():
+        return prompts
+    point = farthest_inside(false_alarms[frame])
+    others = [prompt for prompt in prompts if prompt.frame != frame]
+    same = [prompt for prompt in prompts if prompt.frame == frame]
+    tool = same[0].tool if same else ()
+    if not tool:  # a prompt needs a tool click: the tool's own, as label_clicks places it
+        count, labels = cv2.connectedComponents(clip.truths[frame].astype(np.uint8))
+        if count < 2:
+            return prompts
+        largest = 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
+        tool = (farthest_inside(labels == largest),)
+    tissue = (same[0].tissue if same else ()) + (point,)
+    return sorted(others + [ToolPrompt(frame, tool, tissue)], key=lambda prompt: prompt.frame)
+
+
+def prompted_rows(clips: list[Clip]) -> dict:
+    """Per clip: IoU with 0 clicks (the automatic segmenter), 1 and 3 clicks per tool, and 1
+    click per tool plus one tissue click where the 1-click masks are most wrong."""
+    rows = {}
+    for clip in clips:
+        fov = estimate_fov(clip.images).inside
+        automatic = list(auto_tool_masks(clip.images, fov))
+        tally = sum(counts(result.mask, truth, scored)
+                    for result, truth, scored in zip(automatic, clip.truths, clip.scored))
+        row = {"frames": len(clip.images), "size": [clip.images[0].shape[1],
+                                                    clip.images[0].shape[0]],
+               "clicks_0": scores(tally)}
+        row["clicks_1"], masks = score_prompted(clip, label_clicks(clip.truths, 1))
+        row["clicks_3"], _ = score_prompted(clip, label_clicks(clip.truths, 3))
+        row["clicks_1_corrected"], _ = score_prompted(
+            clip, corrected(label_clicks(clip.truths, 1), masks, clip))
+        rows[clip.name] = row
+        print(f"{clip.name}: IoU with 0 / 1 / 3 / 1 + a tissue click "
+              + " / ".join(f"{row[key]['iou']:.3f}" for key in PROMPTED_KEYS)
+              + f", {1000 * row['clicks_1']['seconds_per_frame']:.0f} ms per frame")
+    return rows
+
+
+PROMPTED_KEYS = ("clicks_0", "clicks_1", "clicks_3", "clicks_1_corrected")
+"""The rows of a clip in the report's `prompted` section."""
+
+
+def drawn_clip(kind: str) -> Clip:
+    """A hard case of hard_tool_clips; every pixel is scored."""
+    images, truths = hard_clip(kind)
+    return Clip(kind, list(range(len(images))), images, truths,
+                [np.ones(image.shape[:2], bool) for image in images])
 
 
 def trained_rows(scenes: dict[str, Path], truth: Path, iterations: int, seeds: int,
@@ -320,6 +437,9 @@ def main() -> None:
         report, phantom_masks[name] = score_clip(clip, {"all": range(len(clip.images))},
                                                  config, args.overlays)
         result["unseen_clips"][name] = {"data": str(folder), **report}
+    result["prompted"] = prompted_rows([cholec] + [phantom_clip(name, folder) for name, folder
+                                                    in phantoms.items()]
+                                       + [drawn_clip(kind) for kind in KINDS])
     if args.tool_free.is_dir():
         clip = tool_free_clip(args.tool_free)
         report, _ = score_clip(clip, {"all": range(len(clip.images))}, config, args.overlays)

@@ -176,6 +176,17 @@ def auto_masks_table(report: dict) -> str:
         lines.append(f"| {name} | {frames} " + scored.format(**row)
                      + f"| {100 * row['false_alarm_share']:.2f} % "
                      f"| {1000 * clip['seconds_per_frame']:.0f} |")
+    if "prompted" in report:
+        lines += ["", "| clip (tool masks from clicks) | frames | IoU, 0 clicks | 1 click "
+                      "per tool | 3 clicks per tool | 1 click + 1 tissue click "
+                      "| lowest frame IoU, 1 click | ms per frame |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for name, row in report["prompted"].items():
+            ious = " | ".join(f"{row[key]['iou']:.3f}" for key in
+                              ("clicks_0", "clicks_1", "clicks_3", "clicks_1_corrected"))
+            lines.append(f"| {name} | {row['frames']} | {ious} "
+                         f"| {row['clicks_1']['frame_iou_min']:.3f} "
+                         f"| {1000 * row['clicks_1']['seconds_per_frame']:.0f} |")
     for clip_name, training in report.get("training", {}).items():
         seeds = training["seeds"]
         lines += ["", f"| {clip_name}: {training['method']}, {training['iterations']} "

@@ -3,16 +3,19 @@
 A prompt file names, on one or more frames, points on the tools and optionally points on the
 tissue (`read_prompts`). From them every frame's mask follows:
 
-- *A region model* learned on each prompted frame. A pixel is described by its CIELAB colour
-  and by the automatic segmenter's appearance log-odds (`auto_tool_masks.appearance_evidence`:
-  how colourless and structured it is against the frame). Tool and tissue each get histograms
-  over those features; a pixel's unary is its tool log-odds under them (naive Bayes, the
-  frame's share of tool as the prior; `fit_model`). Nothing in it is fitted to a clip: the
-  clicks say which statistics are the tool's.
+- *A unary* per pixel, its tool log-odds, learned on each prompted frame (`fit_model`): the
+  log-likelihood ratio of its CIELAB colour (histograms of the tool's and the tissue's
+  colours), plus that of the automatic segmenter's appearance log-odds
+  (`auto_tool_masks.appearance_evidence`: how colourless and structured the pixel is against
+  the frame) learned from the clicked pixels, plus those log-odds themselves, bounded and
+  weighted by how far the automatic segmenter agreed with the clicks. Nothing in it is fitted
+  to a clip: the clicks say which statistics are the tool's, and whether the generic cues
+  hold here. Tissue clicks weigh as much as all the other tissue.
 - *Graph cuts* decide each frame: the unary against a contrast-sensitive Potts smoothness
   (Boykov and Jolly), solved exactly by max-flow (PyMaxflow). On a prompted frame the clicks
-  are hard constraints and the model and cut are re-estimated in turns (GrabCut's scheme, with
-  histograms), keeping the parts connected to a tool click.
+  are hard constraints; the first cut is of the automatic segmenter's log-odds, then the
+  model and the cut are re-estimated in turns (GrabCut's scheme, with histograms), keeping
+  the parts connected to a tool click.
 - *Propagation*: the previous frame's mask, carried into the frame by dense optical flow (DIS)
   and blurred by the flow's uncertainty, is a prior added to the unary. Each frame is decided
   from its nearest prompted frame, forwards or backwards, with that frame's model; a new
@@ -76,8 +79,6 @@ class PromptConfig:
     """Radius of the disk a click marks as certain, as a share of the frame's width."""
     colour_bins: int = 16
     """Bins per CIELAB channel of the colour histograms."""
-    evidence_bins: int = 24
-    """Bins of the appearance log-odds histogram (over -12..12)."""
     smoothness: float = 3.0
     """Weight (log-odds units) of the Potts term between neighbouring pixels of equal colour;
     it falls with their colour difference."""
@@ -86,7 +87,8 @@ class PromptConfig:
     prior_blur: float = 0.006
     """Standard deviation of the blur of the carried mask (flow error), share of the width."""
     anchor_rounds: int = 4
-    """Rounds of model re-estimation and cut on a prompted frame."""
+    """Rounds of model re-estimation and cut on a prompted frame, after the first cut (of the
+    automatic segmenter's log-odds)."""
     uncertain_band: float = 0.03
     """Width, as a share of the frame's width, of the band about the tool found so far that
     a prompted frame's tissue model does not learn from."""
@@ -101,9 +103,8 @@ class PromptConfig:
 
     def validate(self) -> None:
         """Raise SurgsplatError for impossible values."""
-        if self.work_width < 32 or self.colour_bins < 2 or self.evidence_bins < 2:
-            raise SurgsplatError("tool prompts need work_width >= 32, colour_bins >= 2 and "
-                                 "evidence_bins >= 2")
+        if self.work_width < 32 or self.colour_bins < 2:
+            raise SurgsplatError("tool prompts need work_width >= 32 and colour_bins >= 2")
         if not (0 < self.click_radius < 0.5 and 0 <= self.prior_blur < 0.5
                 and 0 <= self.uncertain_band < 0.5 and 0 <= self.refind_share < 1):
             raise SurgsplatError("tool prompts need click_radius in (0, 0.5), prior_blur and "
@@ -232,10 +233,15 @@ def farthest_inside(mask: np.ndarray) -> tuple[float, float]:
 # ---- the region model ----
 @dataclass
 class RegionModel:
-    """Tool log-odds per bin of the pixel's (L, a, b) colour and of its appearance log-odds."""
+    """What the clicks taught: the tool's colours and appearance against the tissue's."""
 
-    colour: np.ndarray  # float32 [B, B, B] posterior log-odds of tool given the colour
-    evidence: np.ndarray  # float32 [E] log p(evidence | tool) - log p(evidence | tissue)
+    colour: np.ndarray  # float32 [B, B, B] log p(colour | tool) - log p(colour | tissue)
+    evidence: np.ndarray  # float32 [EVIDENCE_BINS] the same of the appearance log-odds
+    trust: float  # 0..1 weight of the automatic segmenter's own (bounded) log-odds
+
+
+EVIDENCE_BINS = 24
+"""Bins of the appearance log-odds, over -12..12."""
 
 
 @dataclass
@@ -243,13 +249,15 @@ class _WorkFrame:
     """One frame at the working size, with the features the model reads."""
 
     colour_bin: np.ndarray  # int32 [h, w] flat index of the pixel's CIELAB bin
-    evidence_bin: np.ndarray  # int32 [h, w] bin of its appearance log-odds
+    evidence: np.ndarray  # float32 [h, w] the automatic segmenter's appearance log-odds
+    evidence_bin: np.ndarray  # int32 [h, w] its bin
     grey: np.ndarray  # uint8 [h, w]
     lab: np.ndarray  # float32 [h, w, 3]
 
     def unary(self, model: RegionModel) -> np.ndarray:
-        """float32 [h, w] tool log-odds under `model`."""
-        return model.colour.reshape(-1)[self.colour_bin] + model.evidence[self.evidence_bin]
+        """float32 [h, w] tool log-likelihood ratio under `model`."""
+        return (model.colour.reshape(-1)[self.colour_bin] + model.evidence[self.evidence_bin]
+                + model.trust * np.clip(self.evidence, -TRUST_BOUND, TRUST_BOUND))
 
 
 @dataclass
@@ -271,10 +279,6 @@ class PromptedMask:
         return full if fov is None else full & fov
 
 
-EVIDENCE_RANGE = 12.0
-"""Appearance log-odds are binned over -EVIDENCE_RANGE..EVIDENCE_RANGE."""
-
-
 def _work_frame(small: np.ndarray, inside: np.ndarray, config: PromptConfig) -> _WorkFrame:
     """The features of a frame already at the working size (uint8 RGB [h, w, 3])."""
     lab8 = cv2.cvtColor(small, cv2.COLOR_RGB2LAB)
@@ -282,52 +286,63 @@ def _work_frame(small: np.ndarray, inside: np.ndarray, config: PromptConfig) -> 
     quantised = (lab8.astype(np.int32) * bins) // 256  # [h, w, 3] in 0..bins-1
     colour_bin = (quantised[..., 0] * bins + quantised[..., 1]) * bins + quantised[..., 2]
     evidence = appearance_evidence(small, inside, config.appearance)
-    scaled = (evidence + EVIDENCE_RANGE) / (2 * EVIDENCE_RANGE) * config.evidence_bins
-    evidence_bin = np.clip(scaled.astype(np.int32), 0, config.evidence_bins - 1)
-    return _WorkFrame(colour_bin, evidence_bin, cv2.cvtColor(small, cv2.COLOR_RGB2GRAY),
+    evidence_bin = np.clip(((evidence + 12.0) * (EVIDENCE_BINS / 24.0)).astype(np.int32), 0,
+                           EVIDENCE_BINS - 1)
+    return _WorkFrame(colour_bin, evidence, evidence_bin,
+                      cv2.cvtColor(small, cv2.COLOR_RGB2GRAY),
                       lab8.astype(np.float32))
 
 
-def _counts(sample: np.ndarray, size: int, cube: bool) -> np.ndarray:
-    """float32 [size]: the histogram of the bin indices `sample` (1-D int), smoothed over
-    neighbouring bins of each axis when the bins are a `cube` (colours: alike)."""
+def _log_density(sample: np.ndarray, size: int, cube: int | None) -> np.ndarray:
+    """float32 [size]: log of the density of the bins `sample` (1-D int indices), the
+    histogram smoothed over the neighbouring bins of each axis when the bins are a `cube` of
+    that side (colours); a tenth of the mass is spread evenly over the bins, so a bin the
+    sample never shows has the same density, 0.1 / size / 1.1, in every model."""
     counts = np.bincount(sample, minlength=size).astype(np.float32)
-    if cube:
-        side = round(size ** (1 / 3))
-        counts = counts.reshape(side, side, side)
+    if cube is not None:
+        counts = counts.reshape(cube, cube, cube)
         for axis in range(3):
             counts = (counts + np.roll(counts, 1, axis) + np.roll(counts, -1, axis)) / 3
         counts = counts.reshape(-1)
-    return counts
-
-
-def _log_density(sample: np.ndarray, size: int, cube: bool) -> np.ndarray:
-    """float32 [size]: log of the smoothed histogram density of the bin indices `sample`; a
-    tenth of the mass is spread evenly over the bins, so a bin the sample never shows has
-    the same density, 0.1 / size / 1.1, in every model."""
-    counts = _counts(sample, size, cube)
     total = max(float(counts.sum()), 1.0)
     return np.log((counts + 0.1 * total / size) / (1.1 * total)).astype(np.float32)
 
 
-def fit_model(frame: _WorkFrame, tool: np.ndarray, tissue: np.ndarray, config: PromptConfig,
-              with_prior: bool) -> RegionModel:
-    """The region model of the pixels `tool` and `tissue` (bool [h, w]) of `frame`: naive
-    Bayes over colour and appearance. The appearance term is the log ratio of the classes'
-    densities. The colour term is too when `tool` is only the clicks (`with_prior` False);
-    for a cut's classes it is the log ratio of their counts plus one (the posterior, with the
-    share of tool as the prior). A bin neither class shows is neutral (0) in both, left to
-    the smoothness and the other term."""
+def fit_model(frame: _WorkFrame, tool: np.ndarray, tissue: np.ndarray,
+              tool_clicks: np.ndarray, tissue_clicks: np.ndarray,
+              config: PromptConfig) -> RegionModel:
+    """The region model of `frame` (every mask bool [h, w]):
+
+    - colour: the log ratio of the colour densities of `tool` and `tissue`;
+    - appearance: the same of the automatic segmenter's log-odds, of `tool_clicks` (the tool
+      clicks' pixels) against `tissue`. It is learned from the clicks alone: a cut that began
+      from the appearance would teach it its own bias;
+    - trust: the mean tool probability the automatic segmenter gave the tool clicks' pixels
+      (its log-odds bounded to +-TRUST_BOUND): how far its own log-odds are believed here.
+
+    Where there are tissue clicks, the tissue density is an even mixture of theirs and the rest
+    of the tissue's: what a person marked as not tool weighs as much as all the tissue. The
+    densities are smoothed histograms; a bin neither class shows is neutral (0)."""
     bins = config.colour_bins
-    if with_prior:
-        colour = (np.log(_counts(frame.colour_bin[tool], bins ** 3, True) + 1.0)
-                  - np.log(_counts(frame.colour_bin[tissue], bins ** 3, True) + 1.0))
-    else:
-        colour = (_log_density(frame.colour_bin[tool], bins ** 3, True)
-                  - _log_density(frame.colour_bin[tissue], bins ** 3, True))
-    evidence = (_log_density(frame.evidence_bin[tool], config.evidence_bins, False)
-                - _log_density(frame.evidence_bin[tissue], config.evidence_bins, False))
-    return RegionModel(colour.reshape(bins, bins, bins).astype(np.float32), evidence)
+
+    def log_ratio(values: np.ndarray, size: int, cube: int | None) -> np.ndarray:
+        tool_density = _log_density(values[tool if cube else tool_clicks], size, cube)
+        tissue_density = _log_density(values[tissue & ~tissue_clicks], size, cube)
+        if tissue_clicks.any():
+            tissue_density = np.logaddexp(tissue_density,
+                                          _log_density(values[tissue_clicks], size, cube))
+            tissue_density -= np.log(2.0)
+        return tool_density - tissue_density
+
+    agree = 1.0 / (1.0 + np.exp(-np.clip(frame.evidence[tool_clicks], -TRUST_BOUND,
+                                         TRUST_BOUND)))
+    return RegionModel(log_ratio(frame.colour_bin, bins ** 3, bins).reshape(bins, bins, bins),
+                       log_ratio(frame.evidence_bin, EVIDENCE_BINS, None), float(agree.mean()))
+
+
+TRUST_BOUND = 4.0
+"""Bound of the automatic segmenter's log-odds where they enter the unary: out of the
+conditions it was tuned on (a uniform black instrument) they reach +-12 and more."""
 
 
 # ---- graph cuts ----
@@ -390,20 +405,22 @@ def _margin_confidence(unary: np.ndarray, mask: np.ndarray, inside: np.ndarray) 
 def segment_prompted(frame: _WorkFrame, inside: np.ndarray, tool_seeds: np.ndarray,
                      tissue_seeds: np.ndarray, config: PromptConfig
                      ) -> tuple[np.ndarray, RegionModel, np.ndarray]:
-    """(mask, model, unary) of a prompted frame: the tool model starts from the tool clicks'
-    disks, then cut and model are re-estimated in turns. The tissue sample is the field of
-    view less a band about the tool found so far (its unfound rim would otherwise teach the
-    tissue model the tool's colours); only the parts of the cut connected to a tool click are
-    tool."""
+    """(mask, model, unary) of a prompted frame. The first cut is of the automatic
+    segmenter's appearance log-odds alone, with the clicks as hard constraints: the region
+    about a tool click that looks like an instrument at all. Then the region model is learned
+    from the cut and the cut re-made with it, in turns. The tissue sample is the field of view
+    less a band about the tool found so far (its unfound rim would otherwise teach the tissue
+    model the tool's colours); only the parts of a cut connected to a tool click are tool."""
     tool_seeds = tool_seeds & inside
     side = 2 * max(1, round(config.uncertain_band * inside.shape[1])) + 1
     band = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side))
-    mask = tool_seeds
-    for round_ in range(config.anchor_rounds):
-        near = cv2.dilate(mask.astype(np.uint8), band) > 0
-        model = fit_model(frame, mask | tool_seeds, (inside & ~near) | tissue_seeds, config,
-                          with_prior=round_ > 0)
-        unary = frame.unary(model)
+    unary = frame.evidence
+    for round_ in range(config.anchor_rounds + 1):
+        if round_ > 0:
+            near = cv2.dilate(mask.astype(np.uint8), band) > 0
+            model = fit_model(frame, mask, (inside & ~near) | tissue_seeds, tool_seeds,
+                              tissue_seeds & inside, config)
+            unary = frame.unary(model)
         mask = _components_touching(graph_cut(unary, frame.lab, inside, config.smoothness,
                                               tool_seeds, tissue_seeds), tool_seeds)
     return mask, model, unary
