@@ -17,12 +17,13 @@ from surgsplat.data.layout import MAX_FRAME_PIXELS, META_FILE, SceneMeta
 from surgsplat.data.learned_priors import (DEPTH_OUTPUTS, TOOL_OUTPUTS, DepthNetworkConfig,
                                            ToolSegmenterConfig)
 from surgsplat.data.onnx_models import IMAGENET_MEAN, IMAGENET_STD, ModelInput
-from surgsplat.data.scene import MIN_SIZE
+from surgsplat.data.scene import MIN_SIZE, load_scene
 from surgsplat.data.sfm_poses import INSTALL_HINT, SfmConfig
 from surgsplat.data.shading_depth import ShadingDepthConfig
 from surgsplat.data.stereo import SGBM_MODES, StereoConfig
 from surgsplat.data.tool_masks import MASK_MATCHES
 from surgsplat.errors import SurgsplatError
+from surgsplat.export.mask_preview import PREVIEW_FILE, write_mask_preview
 
 
 def parse_labels(text: str | None) -> tuple[int, ...] | None:
@@ -257,8 +258,18 @@ def import_command(
             bar.update(tasks[stage], completed=done)
 
         scene_dir = import_scene(source, out, config, progress=report)
+        if derives_masks(config):
+            write_mask_preview(load_scene(scene_dir),
+                               progress=lambda done, total: report("masks preview", done, total))
     print_import_table(scene_dir)
     print_summary_table(scene_dir)
+
+
+def derives_masks(config: ImportConfig) -> bool:
+    """Whether the import derives the tool masks (automatic, prompted or a model's), so that
+    a person should look at them: it then writes masks_preview.mp4."""
+    return (config.auto_tool_masks or config.tool_prompts is not None
+            or config.tool_segmenter is not None)
 
 
 def import_config(options: dict[str, Any]) -> ImportConfig:
@@ -308,8 +319,16 @@ def print_import_table(scene_dir: Path) -> None:
         table.add_row("tool masks", f"ONNX segmenter {extra['masks']['model']}")
     elif extra.get("masks", {}).get("automatic"):
         table.add_row("tool masks", "automatic (classical segmenter)")
+    elif "prompts" in extra.get("masks", {}):
+        prompts = extra["masks"]["prompts"]
+        table.add_row("tool masks", f"from the clicks on {len(prompts)} frame"
+                                    f"{'s' if len(prompts) > 1 else ''} of "
+                                    f"{extra['masks']['prompts_file']}")
     elif "masks" in extra:
         table.add_row("tool labels", str(extra["masks"]["tool_labels"]))
+    if (scene_dir / PREVIEW_FILE).is_file():
+        table.add_row("masks preview", f"{scene_dir / PREVIEW_FILE}: check it, and add a click "
+                                       "(--tool-prompts) where a frame is wrong")
     if "depth" in extra:
         table.add_row("depth", f"{extra['depth']['source']} prior: {extra['depth']['scale']}")
     if "poses" in extra:

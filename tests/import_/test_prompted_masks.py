@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import cv2
+import imageio.v3 as iio
 import numpy as np
 import pytest
 
@@ -15,6 +16,7 @@ from surgsplat.data.prompted_masks import (PromptConfig, ToolPrompt, farthest_in
                                            prompted_tool_masks, read_prompts, seed_mask)
 from surgsplat.data.scene import load_scene
 from surgsplat.errors import DataError, SurgsplatError
+from surgsplat.export.mask_preview import STRIP_PX, write_mask_preview
 
 HEIGHT, WIDTH = 240, 427
 
@@ -189,7 +191,8 @@ def write_clip(folder: Path, frames: list[np.ndarray], round_view: bool = False)
 def test_import_writes_the_prompted_masks_and_records_the_prompts(tmp_path: Path):
     """`import --tool-prompts` on a folder of frames, clicks on frame 2 at the source size
     while the scene is written at half size: every written mask matches the truth (IoU >=
-    0.8), and scene.json records the prompts and one confidence per frame."""
+    0.8), scene.json records the prompts and one confidence per frame, and the masks preview
+    shows the mask tinted over its frame (IoU >= 0.7 through the video's compression)."""
     frames, truths = clip([(230 - 5 * step, 120 + 3 * step) for step in range(8)])
     big = [cv2.resize(frame, (2 * WIDTH, 2 * HEIGHT), interpolation=cv2.INTER_LINEAR)
            for frame in frames]
@@ -208,6 +211,11 @@ def test_import_writes_the_prompted_masks_and_records_the_prompts(tmp_path: Path
     masks_meta = json.loads((out / "scene.json").read_text())["extra"]["masks"]
     assert masks_meta["prompts"] == [{"frame": 2, "tool": [[2 * x, 2 * y]], "tissue": []}]
     assert len(masks_meta["confidence"]) == len(truths)
+    preview = iio.imread(write_mask_preview(scene))  # [frames, H + strip, W, 3]
+    assert preview.shape == (len(truths), HEIGHT + STRIP_PX, WIDTH - 1, 3)
+    tinted = preview[5, :HEIGHT, :WIDTH - 1].astype(int)
+    green = (tinted[..., 1] - tinted[..., 0]) > 60  # the tool tint; tissue is red
+    assert iou(green, truths[5][:, :WIDTH - 1]) >= 0.7
 
 
 def test_import_names_a_click_outside_the_field_of_view(tmp_path: Path):
