@@ -59,7 +59,8 @@ def _stoppable(command: Callable) -> Callable:
 
 def _register() -> None:
     from surgsplat.cli import (articulate_cmd, batch, demo, eval_cmd, export_cmd, import_cmd, info,
-                               methods, phantom, render_videos, report_cmd, train, view)
+                               methods, phantom, refine_masks_cmd, render_videos, report_cmd,
+                               train, view)
 
     for name, command in (("demo", demo.demo_command), ("phantom", phantom.phantom_command),
                           ("import", import_cmd.import_command), ("info", info.info_command),
@@ -68,6 +69,7 @@ def _register() -> None:
                           ("render", render_videos.render_command),
                           ("export", export_cmd.export_command),
                           ("articulate", articulate_cmd.articulate_command),
+                          ("refine-masks", refine_masks_cmd.refine_masks_command),
                           ("report", report_cmd.report_command), ("view", view.view_command),
                           ("batch", batch.batch_command)):
         app.command(name)(_stoppable(command))
