@@ -191,12 +191,13 @@ def auto_masks_table(report: dict) -> str:
         seeds = training["seeds"]
         lines += ["", f"| {clip_name}: {training['method']}, {training['iterations']} "
                       f"iterations, scale {training['scale']}, mean of {seeds} "
-                      f"seed{'s' if seeds > 1 else ''} | psnr_tissue | seeds | ssim |",
-                  "|---|---|---|---|"]
+                      f"seed{'s' if seeds > 1 else ''} | psnr_tissue | seeds | ssim "
+                      "| mask IoU |",
+                  "|---|---|---|---|---|"]
         for name, row in training["rows"].items():
             per_seed = " / ".join(f"{seed['psnr_tissue']:.2f}" for seed in row["per_seed"])
             lines.append(f"| {name} | {cell(row, 'psnr_tissue', '.2f')} | {per_seed} "
-                         f"| {cell(row, 'ssim', '.4f')} |")
+                         f"| {cell(row, 'ssim', '.4f')} | {cell(row, 'mask_iou', '.3f')} |")
     return "\n".join(lines)
 
 
