@@ -8,9 +8,9 @@ tissue (`read_prompts`). From them every frame's mask follows:
   colours), plus that of the automatic segmenter's appearance log-odds
   (`auto_tool_masks.appearance_evidence`: how colourless and structured the pixel is against
   the frame) learned from the clicked pixels, plus those log-odds themselves, bounded and
-  weighted by how far the automatic segmenter agreed with the clicks. Nothing in it is fitted
-  to a clip: the clicks say which statistics are the tool's, and whether the generic cues
-  hold here. Tissue clicks weigh as much as all the other tissue.
+  weighted by how much of an instrument the automatic segmenter found about the clicks.
+  Nothing in it is fitted to a clip: the clicks say which statistics are the tool's, and
+  whether the generic cues hold here. Tissue clicks weigh as much as all the other tissue.
 - *Graph cuts* decide each frame: the unary against a contrast-sensitive Potts smoothness
   (Boykov and Jolly), solved exactly by max-flow (PyMaxflow). On a prompted frame the clicks
   are hard constraints; the first cut is of the automatic segmenter's log-odds, then the
@@ -237,7 +237,10 @@ class RegionModel:
 
     colour: np.ndarray  # float32 [B, B, B] log p(colour | tool) - log p(colour | tissue)
     evidence: np.ndarray  # float32 [EVIDENCE_BINS] the same of the appearance log-odds
-    trust: float  # 0..1 weight of the automatic segmenter's own (bounded) log-odds
+    trust: float
+    """0..1, the weight of the automatic segmenter's own (bounded) log-odds: 1 - the share of
+    the clicks' pixels in the first cut (of those log-odds), so 0 where it saw no instrument
+    beyond the clicks, near 1 where it found a whole one about them."""
 
 
 EVIDENCE_BINS = 24
@@ -309,7 +312,7 @@ def _log_density(sample: np.ndarray, size: int, cube: int | None) -> np.ndarray:
 
 
 def fit_model(frame: _WorkFrame, tool: np.ndarray, tissue: np.ndarray,
-              tool_clicks: np.ndarray, tissue_clicks: np.ndarray,
+              tool_clicks: np.ndarray, tissue_clicks: np.ndarray, trust: float,
               config: PromptConfig) -> RegionModel:
     """The region model of `frame` (every mask bool [h, w]):
 
@@ -317,8 +320,7 @@ def fit_model(frame: _WorkFrame, tool: np.ndarray, tissue: np.ndarray,
     - appearance: the same of the automatic segmenter's log-odds, of `tool_clicks` (the tool
       clicks' pixels) against `tissue`. It is learned from the clicks alone: a cut that began
       from the appearance would teach it its own bias;
-    - trust: the mean tool probability the automatic segmenter gave the tool clicks' pixels
-      (its log-odds bounded to +-TRUST_BOUND): how far its own log-odds are believed here.
+    - trust (given): how far the automatic segmenter's own log-odds are believed here.
 
     Where there are tissue clicks, the tissue density is an even mixture of theirs and the rest
     of the tissue's: what a person marked as not tool weighs as much as all the tissue. The
@@ -334,10 +336,8 @@ def fit_model(frame: _WorkFrame, tool: np.ndarray, tissue: np.ndarray,
             tissue_density -= np.log(2.0)
         return tool_density - tissue_density
 
-    agree = 1.0 / (1.0 + np.exp(-np.clip(frame.evidence[tool_clicks], -TRUST_BOUND,
-                                         TRUST_BOUND)))
     return RegionModel(log_ratio(frame.colour_bin, bins ** 3, bins).reshape(bins, bins, bins),
-                       log_ratio(frame.evidence_bin, EVIDENCE_BINS, None), float(agree.mean()))
+                       log_ratio(frame.evidence_bin, EVIDENCE_BINS, None), trust)
 
 
 TRUST_BOUND = 4.0
@@ -414,13 +414,16 @@ def segment_prompted(frame: _WorkFrame, inside: np.ndarray, tool_seeds: np.ndarr
     tool_seeds = tool_seeds & inside
     side = 2 * max(1, round(config.uncertain_band * inside.shape[1])) + 1
     band = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side))
-    unary = frame.evidence
-    for round_ in range(config.anchor_rounds + 1):
-        if round_ > 0:
-            near = cv2.dilate(mask.astype(np.uint8), band) > 0
-            model = fit_model(frame, mask, (inside & ~near) | tissue_seeds, tool_seeds,
-                              tissue_seeds & inside, config)
-            unary = frame.unary(model)
+    mask = _components_touching(graph_cut(frame.evidence, frame.lab, inside,
+                                          config.smoothness, tool_seeds, tissue_seeds),
+                                tool_seeds)
+    # the automatic segmenter is trusted as far as it found the instrument about the clicks
+    trust = 1.0 - float(tool_seeds.sum()) / max(float(mask.sum()), 1.0)
+    for _ in range(config.anchor_rounds):
+        near = cv2.dilate(mask.astype(np.uint8), band) > 0
+        model = fit_model(frame, mask, (inside & ~near) | tissue_seeds, tool_seeds,
+                          tissue_seeds & inside, trust, config)
+        unary = frame.unary(model)
         mask = _components_touching(graph_cut(unary, frame.lab, inside, config.smoothness,
                                               tool_seeds, tissue_seeds), tool_seeds)
     return mask, model, unary
