@@ -258,7 +258,9 @@ def appearance_evidence(image: np.ndarray, inside: np.ndarray,
     return evidence.astype(np.float32)
 
 
-def _working_size(size: tuple[int, int], config: AutoMaskConfig) -> tuple[int, int]:
+def working_size(size: tuple[int, int], config: AutoMaskConfig) -> tuple[int, int]:
+    """(h, w) at which frames of size (H, W) are segmented: `work_width` wide (at most W),
+    the aspect ratio kept."""
     height, width = size
     work = min(config.work_width, width)
     return max(1, round(height * work / width)), work
@@ -403,7 +405,7 @@ def auto_tool_masks(frames: Iterable[np.ndarray], fov: np.ndarray | None,
         nonlocal inside
         for image in frames:
             if inside is None:
-                height, width = _working_size(image.shape[:2], config)
+                height, width = working_size(image.shape[:2], config)
                 full = np.ones(image.shape[:2], bool) if fov is None else fov
                 inside = cv2.resize(full.astype(np.uint8), (width, height),
                                     interpolation=cv2.INTER_NEAREST) > 0

@@ -40,7 +40,8 @@ import cv2
 import maxflow
 import numpy as np
 
-from surgsplat.data.auto_tool_masks import AutoMaskConfig, appearance_evidence, snap_to_edges
+from surgsplat.data.auto_tool_masks import (AutoMaskConfig, appearance_evidence, snap_to_edges,
+                                            working_size)
 from surgsplat.data.frame_motion import FlowEstimator, MotionConfig, warp_from
 from surgsplat.errors import DataError, SurgsplatError
 
@@ -72,9 +73,6 @@ class ToolPrompt:
 class PromptConfig:
     """How clicks become masks and how the masks are carried through the clip."""
 
-    work_width: int = 427
-    """Frames are segmented at this width (pixels; the aspect ratio is kept), masks are
-    returned at the frame's own size."""
     click_radius: float = 0.01
     """Radius of the disk a click marks as certain, as a share of the frame's width."""
     colour_bins: int = 16
@@ -96,15 +94,16 @@ class PromptConfig:
     """A region no carried mask supports is kept only if it touches the rim of the field of
     view and covers at least this share of it."""
     appearance: AutoMaskConfig = field(default_factory=AutoMaskConfig)
-    """The automatic segmenter's settings whose appearance evidence is a feature here, and
-    whose guided filter snaps the masks to the full-size frame's edges."""
+    """The automatic segmenter's settings: its working width is the one frames are segmented
+    at, its appearance evidence is a feature here, and its guided filter snaps the masks to the
+    full-size frame's edges."""
     motion: MotionConfig = field(default_factory=lambda: MotionConfig(preset="ultrafast"))
     """Optical flow that carries the masks."""
 
     def validate(self) -> None:
         """Raise SurgsplatError for impossible values."""
-        if self.work_width < 32 or self.colour_bins < 2:
-            raise SurgsplatError("tool prompts need work_width >= 32 and colour_bins >= 2")
+        if self.colour_bins < 2:
+            raise SurgsplatError("tool prompts need colour_bins >= 2")
         if not (0 < self.click_radius < 0.5 and 0 <= self.prior_blur < 0.5
                 and 0 <= self.uncertain_band < 0.5 and 0 <= self.refind_share < 1):
             raise SurgsplatError("tool prompts need click_radius in (0, 0.5), prior_blur and "
@@ -479,10 +478,8 @@ def prompted_tool_masks(frames: Iterable[np.ndarray], fov: np.ndarray | None,
     inside = None  # bool [h, w] the field of view at the working size
     for image in frames:
         if inside is None:
-            height, width = image.shape[:2]
-            work_w = min(config.work_width, width)
-            size = (max(1, round(height * work_w / width)), work_w)
-            inside = _resize_mask(np.ones((height, width), bool) if fov is None else fov, size,
+            size = working_size(image.shape[:2], config.appearance)
+            inside = _resize_mask(np.ones(image.shape[:2], bool) if fov is None else fov, size,
                                   touched=False)
         smalls.append(cv2.resize(image, inside.shape[::-1], interpolation=cv2.INTER_AREA))
     if inside is None:
