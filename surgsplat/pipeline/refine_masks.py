@@ -36,6 +36,7 @@ from surgsplat.data.auto_tool_masks import AutoMaskConfig, snap_to_edges
 from surgsplat.data.frame_motion import FlowEstimator, MotionConfig, camera_residual, warp_from
 from surgsplat.data.layout import META_FILE, MASKS_DIR, SceneMeta, frame_stem, write_image
 from surgsplat.errors import SurgsplatError
+from surgsplat.export.mask_preview import PREVIEW_FILE
 from surgsplat.model.component import FrameTime
 from surgsplat.model.dynamic import render_frame
 from surgsplat.train.run import TrainedRun
@@ -136,8 +137,8 @@ def refine_masks(run: TrainedRun, out_dir: Path, config: RefineConfig | None = N
     if out_dir.exists() and any(out_dir.iterdir()):
         raise SurgsplatError(f"{out_dir}: exists and is not empty; give a new folder")
     source = run.scene.root
-    shutil.copytree(source, out_dir, dirs_exist_ok=True,
-                    ignore=shutil.ignore_patterns(MASKS_DIR))
+    shutil.copytree(source, out_dir, dirs_exist_ok=True,  # the old masks and their preview
+                    ignore=shutil.ignore_patterns(MASKS_DIR, PREVIEW_FILE))
     (out_dir / MASKS_DIR).mkdir()
     motion, edges = MotionConfig(), AutoMaskConfig()
     flows = FlowEstimator(motion)
