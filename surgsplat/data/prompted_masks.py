@@ -124,7 +124,7 @@ def read_prompts(path: Path, frame_count: int, source_size: tuple[int, int]
                  ) -> list[ToolPrompt]:
     """The prompts of the JSON file `path` for an import of `frame_count` frames of source
     size (H, W), sorted by frame; DataError naming the entry for anything else. Whether the
-    points lie in the field of view is checked later (`check_in_view`)."""
+    points lie in the field of view is the importer's check, once it knows the view."""
     try:
         entries = json.loads(Path(path).read_text())
     except FileNotFoundError:
@@ -207,18 +207,6 @@ def seed_mask(prompt: ToolPrompt, kind: str, source_size: tuple[int, int],
     return seeds
 
 
-def check_in_view(path: Path, prompts: Sequence[ToolPrompt], fov_of_click: Callable
-                  ) -> None:
-    """DataError naming the first click outside the field of view; `fov_of_click(prompt,
-    kind, index)` says whether that click lies inside it."""
-    for number, prompt in enumerate(prompts):
-        for kind in ("tool", "tissue"):
-            for index, (x, y) in enumerate(getattr(prompt, kind)):
-                if not fov_of_click(prompt, kind, index):
-                    raise DataError(path, f"entry for frame {prompt.frame}: {kind} point "
-                                          f"[{x:g}, {y:g}] lies outside the field of view")
-
-
 def farthest_inside(mask: np.ndarray) -> tuple[float, float]:
     """(x, y) of the pixel of the bool mask [H, W] farthest from its boundary: where a script
     clicks a labelled tool (benchmarks, tests)."""
@@ -243,7 +231,8 @@ class RegionModel:
 
 
 EVIDENCE_BINS = 24
-"""Bins of the appearance log-odds, over -12..12."""
+EVIDENCE_RANGE = 12.0
+"""The appearance log-odds are binned into EVIDENCE_BINS over -EVIDENCE_RANGE..EVIDENCE_RANGE."""
 
 
 @dataclass
@@ -288,8 +277,8 @@ def _work_frame(small: np.ndarray, inside: np.ndarray, config: PromptConfig) -> 
     quantised = (lab8.astype(np.int32) * bins) // 256  # [h, w, 3] in 0..bins-1
     colour_bin = (quantised[..., 0] * bins + quantised[..., 1]) * bins + quantised[..., 2]
     evidence = appearance_evidence(small, inside, config.appearance)
-    evidence_bin = np.clip(((evidence + 12.0) * (EVIDENCE_BINS / 24.0)).astype(np.int32), 0,
-                           EVIDENCE_BINS - 1)
+    scaled = (evidence + EVIDENCE_RANGE) * (EVIDENCE_BINS / (2 * EVIDENCE_RANGE))
+    evidence_bin = np.clip(scaled.astype(np.int32), 0, EVIDENCE_BINS - 1)
     return _WorkFrame(colour_bin, evidence, evidence_bin,
                       cv2.cvtColor(small, cv2.COLOR_RGB2GRAY),
                       lab8.astype(np.float32))
