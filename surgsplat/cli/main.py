@@ -60,11 +60,12 @@ def _stoppable(command: Callable) -> Callable:
 def _register() -> None:
     from surgsplat.cli import (articulate_cmd, batch, demo, eval_cmd, export_cmd, import_cmd, info,
                                methods, phantom, refine_masks_cmd, render_videos, report_cmd,
-                               train, view)
+                               stream_cmd, train, view)
 
     for name, command in (("demo", demo.demo_command), ("phantom", phantom.phantom_command),
                           ("import", import_cmd.import_command), ("info", info.info_command),
                           ("methods", methods.methods_command), ("train", train.train_command),
+                          ("stream", stream_cmd.stream_command),
                           ("eval", eval_cmd.eval_command),
                           ("render", render_videos.render_command),
                           ("export", export_cmd.export_command),

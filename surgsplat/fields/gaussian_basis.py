@@ -32,7 +32,9 @@ from torch import Tensor
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.deformation import (Deformation, DeformationField, num_channels,
                                           time_capacity)
+from surgsplat.model.capabilities import Retimable
 from surgsplat.model.component import ComponentConfig, SceneInfo
+from surgsplat.model.gaussians import GaussianModel
 from surgsplat.render.native import Backend, dense_grad, native_module, resolve_backend
 
 WEIGHTS = "basis_weights"
@@ -103,6 +105,7 @@ class GaussianBasisConfig(BasisCurvesConfig, kind="gaussian_basis"):
 
 class GaussianBasisField(DeformationField):
     """Per-Gaussian sums of Gaussian basis functions over time; see the module docstring."""
+    provides = (Retimable,)
 
     def __init__(self, config: GaussianBasisConfig):
         super().__init__()
@@ -129,6 +132,19 @@ class GaussianBasisField(DeformationField):
 
     def attribute_lrs(self) -> dict[str, tuple[float, float]]:
         return self.config.curve_lrs(WEIGHTS, CENTRES, LOG_WIDTHS)
+
+    def retime(self, gaussians: GaussianModel, factor: float) -> None:
+        retime_curves(gaussians, CENTRES, LOG_WIDTHS, factor)
+
+
+@torch.no_grad()
+def retime_curves(gaussians: GaussianModel, centres: str, log_widths: str,
+                  factor: float) -> None:
+    """Compress every Gaussian's curve (its basis centres and log-widths, by the names they are
+    kept under in `gaussians.params`) into [0, factor] of time: exact, the curve at time
+    factor x t is the one that was at t."""
+    gaussians.params[centres].mul_(factor)
+    gaussians.params[log_widths].add_(math.log(factor))
 
 
 def identity_curves(num: int, channels: int, num_basis: int,

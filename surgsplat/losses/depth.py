@@ -118,6 +118,7 @@ class DepthLoss(Component):
     """Loss term "depth": the configured depth loss over the frame's tissue pixels (with
     `tool_pixels`, its field of view) with a measured depth; 0 for frames without depth."""
     phase = Phase.LOSS
+    reads_time = False
 
     def __init__(self, config: DepthLossConfig):
         super().__init__()

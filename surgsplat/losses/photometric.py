@@ -99,6 +99,7 @@ class PhotometricLoss(Component):
     """Loss term "photometric": `photometric_loss` of the rendered colour over tissue pixels,
     the L1 term weighted by the occlusion importance map when occlusion_gamma > 0."""
     phase = Phase.LOSS
+    reads_time = False
 
     def __init__(self, config: PhotometricConfig):
         super().__init__()

@@ -149,6 +149,17 @@ class DensifyWeighting(Protocol):
         None for 1."""
 
 
+class Retimable(Protocol):
+    """Time-dependent state that can follow a change of the clip's time axis: a stream whose
+    clip grows maps frame i from time i / N_old to i / N_new (`train.stream`). A component
+    whose transform reads `when.time` and does not offer this cannot be trained on a
+    stream."""
+
+    def retime(self, gaussians: GaussianModel, factor: float) -> None:
+        """Make the state that was at time t hold at time `factor` x t, for t in [0, 1]
+        (0 < factor <= 1: the clip grew; times past `factor` hold the state that was at 1)."""
+
+
 def required(capability: Offered | None, missing: str) -> Offered:
     """`capability` as the model offers it; SurgsplatError(`missing`) when it offers none."""
     if capability is None:

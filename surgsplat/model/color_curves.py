@@ -33,7 +33,8 @@ import torch
 from surgsplat.errors import SurgsplatError
 from surgsplat.fields.deformation import COLOR_CHANNELS
 from surgsplat.fields.gaussian_basis import (BasisCurvesConfig, deformation_channels,
-                                             identity_curves)
+                                             identity_curves, retime_curves)
+from surgsplat.model.capabilities import Retimable
 from surgsplat.model.component import Component, FrameTime
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
@@ -61,6 +62,7 @@ class ColorCurvesConfig(BasisCurvesConfig, kind="color_curves"):
 class ColorCurves(Component):
     """See the module docstring."""
     phase = Phase.APPEARANCE
+    provides = (Retimable,)
 
     def __init__(self, config: ColorCurvesConfig):
         super().__init__()
@@ -76,6 +78,9 @@ class ColorCurves(Component):
 
     def attribute_lrs(self) -> dict[str, tuple[float, float]]:
         return self.config.curve_lrs(WEIGHTS, CENTRES, LOG_WIDTHS)
+
+    def retime(self, gaussians, factor: float) -> None:
+        retime_curves(gaussians, CENTRES, LOG_WIDTHS, factor)
 
     def transform(self, state: GaussianState, gaussians, when: FrameTime) -> GaussianState:
         """The SH DC colour plus each Gaussian's curve at `when`."""

@@ -193,6 +193,10 @@ class Component(nn.Module):
     component class declares it."""
     separates_tool: ClassVar[bool] = False
     """True when `transform` leaves the tool out of renders asked with `when.tissue_only`."""
+    reads_time: ClassVar[bool] = True
+    """Whether the component's state or hooks depend on the clip's time (`when.time`, frame
+    indices); one that does is trained on a stream only if it offers
+    `capabilities.Retimable`."""
     provides: tuple[type, ...] = ()
     """The capability protocols (`model.capabilities`) this component implements itself; a
     component whose capabilities depend on its config makes it a property."""

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor, nn
 
+from surgsplat.model.capabilities import Retimable
 from surgsplat.model.component import Component, ComponentConfig, FrameTime, ParamGroup, SceneInfo
 from surgsplat.model.phases import Phase
 from surgsplat.model.state import GaussianState
@@ -47,6 +48,7 @@ class ExposureConfig(ComponentConfig, kind="exposure"):
 class ExposureCurve(Component):
     """Per-channel log-gain g(t), linear between `knots` evenly spaced knots; starts at 0."""
     phase = Phase.EXPOSURE
+    provides = (Retimable,)
 
     def __init__(self, config: ExposureConfig):
         super().__init__()
@@ -66,6 +68,16 @@ class ExposureCurve(Component):
         offset = torch.zeros_like(sh[:1])
         offset[0, 0] = (gain - 1.0) * (0.5 / SH_C0)
         return state.replace(sh=sh + offset)
+
+    @torch.no_grad()
+    def retime(self, gaussians, factor: float) -> None:
+        """Resample the knots: knot k (at k / (K - 1)) takes the old curve at time
+        k / (K - 1) / factor, the last knot's value beyond 1."""
+        knots = self.log_gains.shape[0]
+        if knots < 2:
+            return
+        times = [min(k / (knots - 1) / factor, 1.0) for k in range(knots)]
+        self.log_gains.copy_(torch.stack([self.gain(t).log() for t in times]))
 
     def gain(self, t: float) -> Tensor:
         """[3] multiplicative gain at time t (ones without knots)."""

@@ -83,6 +83,14 @@ def psnr_from_mse(mse: float) -> float:
     return -10.0 * math.log10(max(mse, 1e-12))
 
 
+def tissue_psnr(rgb: Tensor, frame: Frame) -> float:
+    """PSNR (dB) of a render rgb [H, W, 3] against `frame` over its tissue pixels and the
+    channels (the training frame's PSNR of a step; a frame without tissue gives 120 dB)."""
+    squared = (rgb - frame.image).square_().mul_(frame.tissue.unsqueeze(-1))
+    count = int(frame.tissue.sum()) * rgb.shape[2]
+    return psnr_from_mse(float(squared.sum()) / max(count, 1))
+
+
 def scene_info(scene: Scene) -> SceneInfo:
     """What components may know of `scene`."""
     first = scene.frames[0]
@@ -183,9 +191,12 @@ class Trainer:
     """Trains a method (a MethodConfig) on a scene into a run folder; SurgsplatError when the
     config breaks a declared range or rule between its fields (`check_config`)."""
 
-    def __init__(self, config: MethodConfig, scene: Scene, run_dir: Path):
+    def __init__(self, config: MethodConfig, scene: Scene, run_dir: Path,
+                 info: SceneInfo | None = None):
+        """info: what the components are set up for; by default the scene's (`scene_info`),
+        a stream's clip to come otherwise (`train.stream`)."""
         check_config(config)
-        info = scene_info(scene)
+        info = info or scene_info(scene)
         self.config = config.resolved(info)
         scene = offset_tool_masks(scene, self.config.train.tool_mask_offset_px)
         self.scene = scene
@@ -248,8 +259,13 @@ class Trainer:
             eps=1e-15, fused=True)
         return optimizer, {g.name: g for g in groups if g.lr_final is not None and g.lr > 0}
 
+    def lr_progress(self) -> float:
+        """Where the decaying learning rates are, from 0 (initial) to 1 (final): the fraction
+        of the run done."""
+        return min(self.iteration / max(self.config.train.iterations, 1), 1.0)
+
     def _update_learning_rates(self) -> None:
-        progress = min(self.iteration / max(self.config.train.iterations, 1), 1.0)
+        progress = self.lr_progress()
         for group in self.optimizer.param_groups:
             schedule = self.schedules.get(group["name"])
             if schedule is not None:
@@ -324,11 +340,9 @@ class Trainer:
                                              self.model.opacity_factor)
         self.model.after_step(self.iteration)
         self.elapsed += time.perf_counter() - started
-        with torch.no_grad():  # squared error over the tissue pixels and the channels
-            squared = (output.rgb - frame.image).square_().mul_(frame.tissue.unsqueeze(-1))
-            count = int(frame.tissue.sum()) * output.rgb.shape[2]
-            mse = float(squared.sum()) / max(count, 1)
-        return StepStats(self.iteration, float(loss.detach()), psnr_from_mse(mse),
+        with torch.no_grad():
+            psnr = tissue_psnr(output.rgb, frame)
+        return StepStats(self.iteration, float(loss.detach()), psnr,
                          self.model.gaussians.num_gaussians, self.elapsed,
                          {name: float(value.detach()) for name, value in terms.items()})
 

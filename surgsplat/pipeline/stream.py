@@ -1,0 +1,423 @@
+"""`surgsplat stream`: reconstruct while the video plays.
+
+The source (`data.stream_source`) is read on a thread of its own, which stamps each frame with
+its arrival time and queues it; the training loop takes what has arrived before every step:
+each frame is written into the run's scene folder (RUN/scene, an ordinary scene folder, with the
+depth and tool masks the frame came with, or its automatic tool mask), integrated into the
+model (`train.stream.StreamTrainer`) and trained on at the next step, and replay steps fill the
+time until the next frame. The stream ends with the source, or on Ctrl-C; an optional polish
+trains on for some seconds; then the time axis is fitted to the frames that came and the scene
+folder and the run's files are finished, so that RUN is an ordinary run (`eval`, `render`,
+`view`, `export`).
+
+RUN/stream_log.jsonl gets one line per frame when it is first trained on (test frames: when they
+arrive), and is rewritten at the end with every frame's final PSNR. RUN/stream.json sums the
+stream up. Checkpoints are written every train.checkpoint_seconds and at the end.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import queue
+import statistics
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from surgsplat.atomic import write_text_atomic
+from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks
+from surgsplat.data.frame_store import FrameStore
+from surgsplat.data.layout import (DEPTH_DIR, IMAGES_DIR, MASKS_DIR, SceneMeta, SceneWriter,
+                                   frame_stem, max_depth)
+from surgsplat.data.scene import (Camera, Frame, FrameFiles, Scene, frame_pixels, is_test_index,
+                                  load_scene, read_frame_files)
+from surgsplat.data.stream_source import (ArrivedFrame, BadFrame, StreamSource,
+                                          camera_intrinsics, open_source)
+from surgsplat.errors import SurgsplatError
+from surgsplat.methods.config import MethodConfig
+from surgsplat.pipeline.train import Note, quiet
+from surgsplat.train.stream import DEFAULT_HORIZON, FrameRecord, StreamConfig, StreamTrainer
+from surgsplat.train.trainer import (CHECKPOINT, LOG_EVERY, LOG_FILE, BUDGET_WINDOW, StepStats,
+                                     stops_between_steps)
+
+SCENE_DIR = "scene"
+"""RUN/scene: the frames of the stream, as a scene folder."""
+STREAM_LOG = "stream_log.jsonl"
+STREAM_SUMMARY = "stream.json"
+BAD_FRAME_ACTIONS = ("skip", "stop")
+MASK_SOURCES = ("given", "auto", "none")
+"""Tool masks of a stream: the source's own (a scene folder's masks/), the automatic
+segmenter's, or none."""
+
+
+@dataclass
+class StreamOptions:
+    """What `surgsplat stream` was asked for, beside the method."""
+
+    source: str
+    out: Path
+    rate: float | None = None  # a video's playing rate, frames per second (None: its own)
+    frames: int | None = None  # how many frames the source sends, when the source cannot say
+    idle_timeout: float = 10.0  # a folder's end: seconds without a new frame
+    on_bad_frame: str = "skip"
+    tool_masks: str = "given"
+    focal: float | None = None  # pixels; None: the source's, else an assumed field of view
+    polish_seconds: float = 0.0
+    settings: StreamConfig = field(default_factory=StreamConfig)
+
+
+@dataclass
+class StreamResult:
+    """What a finished stream reports."""
+
+    trainer: StreamTrainer
+    records: list[FrameRecord]
+    bad_frames: list[str]
+    steps_streaming: int
+    polish_steps: int
+    stopped_by_user: bool
+
+
+END = object()
+"""Queued after the source's last frame."""
+
+
+def _read_source(source: StreamSource, items: queue.Queue, stop: threading.Event) -> None:
+    """Queue every frame of `source` (an ArrivedFrame or a BadFrame) and the error that ends
+    it, if one does, then END."""
+    frames = source.frames()
+    try:
+        while not stop.is_set():
+            try:
+                items.put(next(frames))
+            except StopIteration:
+                break
+            except Exception as err:  # noqa: BLE001 - handed to the training thread to raise
+                items.put(err)
+                break
+    finally:
+        frames.close()
+        items.put(END)
+
+
+class AutoMasks:
+    """The automatic tool segmenter run on the arriving frames: frame i's mask is ready once
+    the segmenter's temporal window past it has arrived (or the stream has ended)."""
+
+    def __init__(self) -> None:
+        config = AutoMaskConfig()
+        self.delay = config.temporal_radius
+        """Frames that must arrive after a frame before its mask is decided."""
+        self._images: queue.Queue = queue.Queue()
+        self._masks = auto_tool_masks(self._arrived(), None, config)
+
+    def _arrived(self) -> Iterator[np.ndarray]:
+        while (image := self._images.get()) is not None:
+            yield image
+
+    def add(self, image: np.ndarray) -> None:
+        self._images.put(image)
+
+    def end(self) -> None:
+        self._images.put(None)
+
+    def next_mask(self) -> np.ndarray:
+        return next(self._masks).mask
+
+
+class StreamScene:
+    """RUN/scene written frame by frame, and its frames served to training through a bounded
+    cache that decodes evicted frames from the written files."""
+
+    def __init__(self, root: Path, first: ArrivedFrame, source: StreamSource, focal: float | None,
+                 description: str):
+        height, width = first.image.shape[:2]
+        intrinsics = camera_intrinsics(source.camera.intrinsics, width, height, focal)
+        depth_unit = source.camera.depth_unit if first.depth is not None else "unknown"
+        self.meta = SceneMeta(depth_unit=depth_unit, intrinsics=intrinsics, source=description)
+        self.writer = SceneWriter(root, intrinsics.fx, self.meta)
+        self.root = root
+        self.size = (height, width)
+        self.K = torch.tensor(intrinsics.matrix(), dtype=torch.float32)
+        self.has_depth = first.depth is not None
+        self.fov = torch.ones(self.size, dtype=torch.bool)
+        self.store = FrameStore(self._decode)
+        self.first_pose = (np.eye(4) if first.world_to_camera is None
+                           else first.world_to_camera)
+        self.has_masks = False
+
+    def _decode(self, index: int):
+        stem = frame_stem(index)
+        files = FrameFiles(image=self.root / IMAGES_DIR / f"{stem}.png",
+                           depth=self.root / DEPTH_DIR / f"{stem}.png" if self.has_depth
+                           else None,
+                           mask=self.root / MASKS_DIR / f"{stem}.png" if self.has_masks
+                           else None,
+                           depth_scale=self.meta.depth_scale,
+                           depth_limit=max_depth(self.meta.depth_unit), size=self.size)
+        return frame_pixels(*read_frame_files(files, None), self.fov)
+
+    def add(self, arrived: ArrivedFrame, tool: np.ndarray | None) -> Frame:
+        """Write `arrived` (with tool mask `tool`) as the next frame and return it."""
+        index = self.writer.count
+        if arrived.image.shape[:2] != self.size:
+            raise BadFrame(Path(f"frame {arrived.index}"), f"is {arrived.image.shape[0]}x"
+                           f"{arrived.image.shape[1]} (HxW), the stream's frames "
+                           f"{self.size[0]}x{self.size[1]}", arrived.index)
+        if (arrived.depth is not None) != self.has_depth:
+            raise BadFrame(Path(f"frame {arrived.index}"), "has no depth while the first had "
+                           "depth" if self.has_depth else "has depth while the first had none",
+                           arrived.index)
+        if index == 0:
+            self.has_masks = tool is not None
+        elif (tool is not None) != self.has_masks:
+            raise BadFrame(Path(f"frame {arrived.index}"), "has no tool mask while the first "
+                           "had one" if self.has_masks else "has a tool mask while the first "
+                           "had none", arrived.index)
+        pose = self.first_pose if arrived.world_to_camera is None else arrived.world_to_camera
+        self.writer.add_frame(arrived.image, arrived.depth, tool, pose)
+        depth = None if arrived.depth is None else arrived.depth.astype(np.float32)
+        self.store.put(index, frame_pixels(arrived.image, depth, tool, self.fov))
+        camera = Camera(K=self.K, world_to_camera=torch.tensor(pose, dtype=torch.float32),
+                        width=self.size[1], height=self.size[0])
+        return Frame.stored(index, 0.0, is_test_index(index), camera, self.store)
+
+    def scene(self, frames: list[Frame]) -> Scene:
+        """The scene of `frames` (training grows its list)."""
+        return Scene(root=self.root, frames=frames, meta=self.meta, near=0.01, far=1000.0,
+                     has_depth=self.has_depth, has_masks=self.has_masks, has_fov=False)
+
+    def finish(self) -> Scene:
+        """Write the scene folder's remaining files and load it back, as any run's scene."""
+        self.writer.finish()
+        return load_scene(self.root)
+
+
+class _LiveLog:
+    """RUN/stream_log.jsonl: a line per frame once it is trained on (test frames: at arrival)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.handle = open(path, "w", buffering=1)
+        self.written: set[int] = set()
+
+    def update(self, records: dict[int, FrameRecord]) -> None:
+        for index, record in records.items():
+            if index not in self.written and (record.is_test or record.trained_at is not None):
+                self.handle.write(json.dumps(record_line(record)) + "\n")
+                self.written.add(index)
+
+    def rewrite(self, records: list[FrameRecord]) -> None:
+        self.handle.close()
+        write_text_atomic(self.path, "".join(json.dumps(record_line(r)) + "\n" for r in records))
+
+
+def record_line(record: FrameRecord) -> dict:
+    line = asdict(record)
+    line["lag"] = record.lag
+    return line
+
+
+def stream_run(config: MethodConfig, options: StreamOptions, note: Note = quiet,
+               on_step: Callable[[StepStats, int], None] | None = None) -> StreamResult:
+    """Stream `options.source` into the run folder `options.out`, which the caller owns
+    (`cli.train.new_run_folder`; see the module docstring); `on_step(stats, frames_so_far)`
+    after every step."""
+    if options.on_bad_frame not in BAD_FRAME_ACTIONS:
+        raise SurgsplatError(f"--on-bad-frame must be one of {', '.join(BAD_FRAME_ACTIONS)}, "
+                             f"got {options.on_bad_frame!r}")
+    if options.tool_masks not in MASK_SOURCES:
+        raise SurgsplatError(f"--tool-masks must be one of {', '.join(MASK_SOURCES)}, got "
+                             f"{options.tool_masks!r}")
+    # PyTorch's optimisers import torch._dynamo when the first is built (about 2 s): import it
+    # before the source starts, or the first frames wait for it
+    importlib.import_module("torch._dynamo")
+    source = open_source(options.source, options.rate, options.idle_timeout)
+    items: queue.Queue = queue.Queue()
+    stop = threading.Event()
+    reader = threading.Thread(target=_read_source, args=(source, items, stop), daemon=True,
+                              name="stream-source")
+    started = time.monotonic()
+    reader.start()
+    try:
+        return _stream(config, options, source, items, started, note, on_step)
+    finally:
+        stop.set()
+
+
+def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
+            items: queue.Queue, started: float, note: Note,
+            on_step: Callable[[StepStats, int], None] | None) -> StreamResult:
+    out = options.out
+    bad_frames: list[str] = []
+    masks = AutoMasks() if options.tool_masks == "auto" else None
+    waiting: deque[ArrivedFrame] = deque()  # arrived, their automatic mask not yet ready
+    scene_files: StreamScene | None = None
+    trainer: StreamTrainer | None = None
+    ended = stopped_by_user = False
+    steps_streaming = 0
+    log = None
+    train_log = None
+    recent: deque[float] = deque(maxlen=BUDGET_WINDOW)
+    last_save = time.monotonic()
+
+    def take(arrived: ArrivedFrame) -> None:
+        nonlocal scene_files, trainer, log, train_log
+        tool = arrived.tool if options.tool_masks == "given" else None
+        if masks is not None:
+            tool = masks.next_mask()
+        if scene_files is None:
+            out.mkdir(parents=True, exist_ok=True)
+            scene_files = StreamScene(out / SCENE_DIR, arrived, source, options.focal,
+                                      f"stream of {options.source}")
+            frame = scene_files.add(arrived, tool)
+            horizon = options.frames or source.camera.expected_frames or DEFAULT_HORIZON
+            trainer = StreamTrainer(config, scene_files.scene([frame]), out, horizon,
+                                    options.settings, started)
+            trainer.records[0].arrival = arrived.arrival - started
+            trainer.write_run_files()
+            log = _LiveLog(out / STREAM_LOG)
+            train_log = open(out / LOG_FILE, "w", buffering=1)
+            return
+        trainer.integrate(scene_files.add(arrived, tool), arrived.arrival)
+
+    def bad(err: BadFrame) -> None:
+        bad_frames.append(str(err))
+        if options.on_bad_frame == "stop":
+            raise err
+        note(f"skipped a bad frame: {err}")
+
+    def take_or_skip(arrived: ArrivedFrame) -> None:
+        try:
+            take(arrived)
+        except BadFrame as err:
+            bad(err)
+
+    def receive(item) -> None:
+        nonlocal ended
+        if item is END:
+            ended = True
+            if masks is not None:
+                masks.end()
+                while waiting:
+                    take_or_skip(waiting.popleft())
+            return
+        if isinstance(item, BadFrame):
+            bad(item)
+            return
+        if isinstance(item, Exception):
+            raise item
+        if masks is None:
+            take_or_skip(item)
+            return
+        masks.add(item.image)
+        waiting.append(item)
+        while len(waiting) > masks.delay:
+            take_or_skip(waiting.popleft())
+
+    try:
+        with stops_between_steps() as stop_requested:
+            while not ended:
+                block = trainer is None or not trainer.has_frames_to_train
+                try:
+                    receive(items.get(timeout=0.05) if block else items.get_nowait())
+                    while True:
+                        receive(items.get_nowait())
+                except queue.Empty:
+                    pass
+                if stop_requested():
+                    stopped_by_user = True
+                    break
+                if trainer is None or not trainer.has_frames_to_train:
+                    continue
+                before = trainer.elapsed
+                stats = trainer.step()
+                recent.append(trainer.elapsed - before)
+                steps_streaming += 1
+                _log_step(train_log, stats)
+                log.update(trainer.records)
+                if on_step:
+                    on_step(stats, len(trainer.scene.frames))
+                if time.monotonic() - last_save >= trainer.config.train.checkpoint_seconds:
+                    trainer.save()
+                    last_save = time.monotonic()
+    except BadFrame as err:
+        stopped_at = err
+    else:
+        stopped_at = None
+    if trainer is None:
+        raise stopped_at or SurgsplatError(f"{options.source}: the stream ended before its "
+                                           "first frame")
+    polish_steps = _polish(trainer, options.polish_seconds, recent, train_log, on_step)
+    trainer.finish()
+    trainer.scene = scene_files.finish()
+    train_log.close()
+    trainer.write_run_files()
+    trainer.save()
+    records = [trainer.records[i] for i in sorted(trainer.records)]
+    log.rewrite(records)
+    result = StreamResult(trainer, records, bad_frames, steps_streaming, polish_steps,
+                          stopped_by_user)
+    write_text_atomic(out / STREAM_SUMMARY, json.dumps(stream_summary(result, options),
+                                                       indent=2) + "\n")
+    if stopped_at is not None:
+        raise SurgsplatError(f"{stopped_at}; the stream stopped there (--on-bad-frame stop), "
+                             f"and {out} holds the run of the {len(records)} frames before it")
+    return result
+
+
+def _log_step(handle, stats: StepStats) -> None:
+    if stats.iteration % LOG_EVERY == 0:
+        handle.write(json.dumps(asdict(stats)) + "\n")
+
+
+def _polish(trainer: StreamTrainer, seconds: float, recent: deque[float], train_log,
+            on_step) -> int:
+    """Train on for `seconds` after the last frame (rates decaying to their final values);
+    the number of steps it took."""
+    if seconds <= 0:
+        return 0
+    per_step = statistics.mean(recent) if recent else 0.1
+    steps = max(int(seconds / per_step), 1)
+    trainer.start_polish(steps)
+    deadline = time.monotonic() + seconds
+    done = 0
+    with stops_between_steps() as stop_requested:
+        while done < steps and time.monotonic() < deadline and not stop_requested():
+            stats = trainer.step()
+            _log_step(train_log, stats)
+            done += 1
+            if on_step:
+                on_step(stats, len(trainer.scene.frames))
+    return done
+
+
+def stream_summary(result: StreamResult, options: StreamOptions) -> dict:
+    """RUN/stream.json: the stream's settings and what it measured."""
+    trained = [r for r in result.records if r.lag is not None]
+    lags = [r.lag for r in trained]
+    trainer = result.trainer
+    return {
+        "source": options.source, "method": trainer.config.name,
+        "rate": options.rate, "frames": len(result.records),
+        "train_frames": sum(not r.is_test for r in result.records),
+        "bad_frames": result.bad_frames, "stopped_by_user": result.stopped_by_user,
+        "steps_streaming": result.steps_streaming, "polish_steps": result.polish_steps,
+        "polish_seconds": options.polish_seconds,
+        "lag_median_s": statistics.median(lags) if lags else None,
+        "lag_max_s": max(lags) if lags else None,
+        "untrained_frames": sum(not r.is_test and r.lag is None for r in result.records),
+        "last_arrival_s": result.records[-1].arrival,
+        "train_seconds": trainer.elapsed,
+        "gaussians": trainer.model.gaussians.num_gaussians,
+        "tool_masks": options.tool_masks,
+        "settings": asdict(options.settings),
+        "checkpoint": str(options.out / CHECKPOINT),
+    }

@@ -1,0 +1,271 @@
+"""Training while the clip arrives: a Trainer whose scene grows frame by frame.
+
+A StreamTrainer starts from the first frame (its depth gives the initial Gaussians, as for an
+offline run) and `integrate`s every later frame as it comes:
+- the frame's time is its index over the stream's horizon (the frames the time axis is set up
+  for; a stream that outgrows it doubles it, compressing the earlier frames' time, and `finish`
+  fits it to the frames that came, so that the run is an ordinary one: frame i at i / N);
+- it is rendered at once, which gives its PSNR on arrival and the tissue pixels the model does
+  not explain (too transparent, or off by more than `add_residual_factor` times the frame's
+  median error): Gaussians are added there, at the frame's depth where it has one, else at the
+  rendered depth;
+- a training frame is trained on at the next step, before any replay.
+
+Between arrivals each step replays a seen training frame: one of the `recent_frames` latest with
+probability `recent_share`, else any, so that the earliest frames are not forgotten. The
+schedules are written for a run of unknown length: the learning rates stay at `lr_progress` of
+their decay while frames arrive and decay to their final values over the polish that may follow
+the last frame (`start_polish`); densification runs every DensifyConfig.every steps from
+`densify_after_steps` until the polish.
+
+A component that follows the clip's time can stream only if it can follow the time axis as it
+grows (`capabilities.Retimable`); loss terms with a window (a fraction of the run) cannot: a
+stream has no length to take a fraction of. `check_streamable` says which one stops a method.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from surgsplat.data.scene import Frame, Scene
+from surgsplat.errors import SurgsplatError
+from surgsplat.methods.config import MethodConfig
+from surgsplat.model.capabilities import Retimable
+from surgsplat.model.component import Component, FrameTime, SceneInfo, SetupContext
+from surgsplat.model.dynamic import render_frame
+from surgsplat.model.gaussians import GaussianModel
+from surgsplat.image.pinhole import backproject
+from surgsplat.train.per_gaussian import append_gaussians
+from surgsplat.train.trainer import Trainer, declared_per_gaussian, tissue_psnr
+
+DEFAULT_HORIZON = 128
+"""Frames a stream's time axis is set up for when the source does not say how many it sends."""
+
+
+@dataclass
+class StreamConfig:
+    """How a stream is trained (see the module docstring)."""
+
+    recent_frames: int = field(default=8, metadata={"range": "[1, inf)"})
+    """The latest training frames that replay favours."""
+    recent_share: float = field(default=0.5, metadata={"range": "[0, 1]"})
+    """Share of the replay steps spent on the `recent_frames` latest frames."""
+    lr_progress: float = field(default=0.3, metadata={"range": "[0, 1]"})
+    """Where the decaying learning rates are held while frames arrive, from 0 (initial) to 1
+    (final); the polish decays them from here to 1."""
+    densify_after_steps: int = field(default=100, metadata={"range": "[1, inf)"})
+    """Densification starts after this many steps."""
+    add_alpha_below: float = field(default=0.5, metadata={"range": "[0, 1]"})
+    """Tissue pixels of a new frame rendered less opaque than this get new Gaussians."""
+    add_residual_factor: float = field(default=4.0, metadata={"range": "(0, inf)"})
+    """Tissue pixels whose error (mean over the channels) is above this times the frame's
+    median error get new Gaussians."""
+    add_min_residual: float = field(default=0.05, metadata={"range": "[0, 1]"})
+    """...and above this error (of colours in [0, 1]), so that a well explained frame adds
+    none."""
+    add_stride: int = field(default=2, metadata={"range": "[1, inf)"})
+    """New Gaussians come from every add_stride-th pixel in x and y."""
+
+
+def check_streamable(config: MethodConfig, components: Mapping[str, Component]) -> None:
+    """SurgsplatError naming what keeps `config`'s method (built as `components`) from
+    training on a stream."""
+    for name, component in components.items():
+        if component.reads_time and Retimable not in component.provides:
+            raise SurgsplatError(f"method {config.name!r} cannot stream: its component {name!r} "
+                                 "follows the clip's time but cannot follow a clip that grows "
+                                 "(use --method deform3dgs)")
+    for name, weight in config.losses.items():
+        if weight.weight > 0 and (weight.start > 0 or weight.stop < 1):
+            raise SurgsplatError(f"method {config.name!r} cannot stream: loss term {name!r} is "
+                                 f"active over a fraction of the run ({weight.start:g} to "
+                                 f"{weight.stop:g}), and a stream has no length; "
+                                 f"--set losses.{name}.start=0 --set losses.{name}.stop=1")
+
+
+@dataclass
+class FrameRecord:
+    """What the stream log says of one frame."""
+
+    index: int
+    arrival: float  # seconds since the stream started
+    is_test: bool
+    trained_at: float | None = None  # seconds since the stream started; None = not yet
+    psnr_arrival: float | None = None  # tissue PSNR of the model as the frame arrived
+    psnr_final: float | None = None
+    added_gaussians: int = 0
+
+    @property
+    def lag(self) -> float | None:
+        """Seconds from arrival to the first step on the frame."""
+        return None if self.trained_at is None else self.trained_at - self.arrival
+
+
+class StreamTrainer(Trainer):
+    """A Trainer of a scene that grows; see the module docstring. `scene` holds the first
+    frame; `horizon` is the number of frames the time axis is set up for."""
+
+    def __init__(self, config: MethodConfig, scene: Scene, run_dir: Path, horizon: int,
+                 stream: StreamConfig, started: float):
+        self.horizon = max(horizon, 2)
+        first = scene.frames[0]
+        first.time = 0.0
+        info = SceneInfo(num_frames=self.horizon, width=scene.width, height=scene.height,
+                         train_indices=tuple(range(self.horizon)))
+        super().__init__(config, scene, run_dir, info=info)
+        check_streamable(self.config, self.model.components)
+        self.stream = stream
+        self.started = started  # time.monotonic() of the stream's start
+        self.records: dict[int, FrameRecord] = {}
+        self._fresh: deque[Frame] = deque()  # training frames not yet trained on
+        self._polish: tuple[int, int] | None = None  # (first step, last step) of the polish
+        self.strategy.first = stream.densify_after_steps
+        self.strategy.last = sys.maxsize
+        self.strategy.reset_period = 0
+        self._replay = torch.Generator().manual_seed(self.config.train.seed)
+        self._record(first, first_arrival=True)
+
+    # ---- arrivals ----
+    def integrate(self, frame: Frame, arrival: float) -> None:
+        """Add the arrived `frame` (index len(scene.frames)) to the scene: its time, its record
+        with its PSNR on arrival, and Gaussians where the model does not explain it."""
+        if frame.index != len(self.scene.frames):
+            raise ValueError(f"frame {frame.index} arrived after {len(self.scene.frames)} frames")
+        while frame.index >= self.horizon:
+            self._double_horizon()
+        frame.time = frame.index / self.horizon
+        self.scene.frames.append(frame)
+        self._record(frame, arrival=arrival)
+
+    def _record(self, frame: Frame, arrival: float | None = None,
+                first_arrival: bool = False) -> None:
+        arrival = time.monotonic() if arrival is None else arrival
+        record = FrameRecord(frame.index, arrival - self.started, frame.is_test)
+        self.records[frame.index] = record
+        with torch.no_grad():
+            output = render_frame(self.model, frame.camera, self._when(frame), self.background)
+            record.psnr_arrival = tissue_psnr(output.rgb, frame)
+            if not frame.is_test and not first_arrival:
+                record.added_gaussians = self._add_gaussians(frame, output)
+        if not frame.is_test:
+            self._fresh.append(frame)
+
+    def _when(self, frame: Frame) -> FrameTime:
+        return FrameTime(frame.index, frame.time)
+
+    def _double_horizon(self) -> None:
+        self.retime(self.horizon * 2)
+
+    def retime(self, horizon: int) -> None:
+        """Set the time axis up for `horizon` frames: every Retimable component follows, and
+        frame i's time becomes i / horizon."""
+        factor = self.horizon / horizon
+        for component in self.model.providers(Retimable):
+            component.retime(self.model.gaussians, factor)
+        self.horizon = horizon
+        for frame in self.scene.frames:
+            frame.time = frame.index / horizon
+
+    @torch.no_grad()
+    def _add_gaussians(self, frame: Frame, output) -> int:
+        """Gaussians at the tissue pixels of `frame` that `output` (its render) does not
+        explain; returns how many were added (none past the Gaussian budget)."""
+        stream = self.stream
+        error = (output.rgb - frame.image).abs().mean(dim=2)  # [H, W]
+        tissue = frame.tissue
+        if not tissue.any():
+            return 0
+        threshold = max(stream.add_residual_factor * float(error[tissue].median()),
+                        stream.add_min_residual)
+        wanted = tissue & ((output.alpha < stream.add_alpha_below) | (error > threshold))
+        stride = torch.zeros_like(wanted)
+        stride[::stream.add_stride, ::stream.add_stride] = True
+        wanted &= stride
+        room = self.strategy.max_gaussians - self.model.gaussians.num_gaussians
+        if room <= 0 or not wanted.any():
+            return 0
+        depth = frame.depth if frame.depth is not None else torch.zeros_like(output.depth)
+        rendered = output.depth.where(output.alpha > 0.5, torch.zeros_like(output.depth))
+        if not bool((rendered > 0).any()):
+            return 0
+        fallback = rendered.where(rendered > 0, rendered[rendered > 0].median())
+        depth = depth.where(depth > 0, fallback)
+        camera = self.model.camera_at(frame.camera, self._when(frame))
+        means = backproject(depth, camera.K, wanted, camera.camera_to_world)
+        colors = frame.image[wanted]
+        # each stands for a stride x stride patch of pixels at its depth
+        sizes = depth[wanted] * (stream.add_stride / camera.fx)
+        if means.shape[0] > room:
+            keep = torch.randperm(means.shape[0], generator=self._replay)[:room]
+            means, colors, sizes = means[keep], colors[keep], sizes[keep]
+        self._append(means, colors, sizes)
+        return int(means.shape[0])
+
+    def _append(self, means: torch.Tensor, colors: torch.Tensor, sizes: torch.Tensor) -> None:
+        """Append Gaussians at `means` [M, 3] with `colors` [M, 3] and isotropic scales
+        `sizes` [M] (scene units), every component's initial attributes with them (as the
+        initial points get)."""
+        context = SetupContext(scene=SceneInfo(self.horizon, self.scene.width,
+                                               self.scene.height, ()),
+                               points=means, scene_extent=self.scene_extent, frames=())
+        attributes, buffers = declared_per_gaussian(context, self.model.components)
+        fresh = GaussianModel.from_points(means, colors, self.config.gaussians, attributes,
+                                          buffers)
+        rows = {name: value.detach() for name, value in fresh.per_gaussian().items()}
+        rows["log_scales"] = sizes.clamp_min(1e-6).log()[:, None].expand(-1, 3).contiguous()
+        append_gaussians(self.model.gaussians, self.optimizer, rows)
+
+    # ---- steps ----
+    @property
+    def has_frames_to_train(self) -> bool:
+        return any(not frame.is_test for frame in self.scene.frames)
+
+    def _next_frame(self) -> Frame:
+        if self._fresh:
+            frame = self._fresh.popleft()
+            record = self.records[frame.index]
+            if record.trained_at is None:
+                record.trained_at = time.monotonic() - self.started
+            return frame
+        frames = self.scene.train_frames
+        recent = frames[-self.stream.recent_frames:]
+        pool = recent if float(torch.rand(1, generator=self._replay)) < \
+            self.stream.recent_share else frames
+        return pool[int(torch.randint(len(pool), (1,), generator=self._replay))]
+
+    def _at_step_size(self, frame: Frame) -> Frame:
+        return frame  # a stream trains at full size: a coarse stage needs a run's length
+
+    def lr_progress(self) -> float:
+        held = self.stream.lr_progress
+        if self._polish is None:
+            return held
+        first, last = self._polish
+        done = min(max(self.iteration - first, 0) / max(last - first, 1), 1.0)
+        return held + (1.0 - held) * done
+
+    def start_polish(self, steps: int) -> None:
+        """The next `steps` steps are the polish: no densification, the rates decay to their
+        final values."""
+        self._polish = (self.iteration, self.iteration + steps)
+        self.strategy.last = self.iteration
+
+    # ---- the end ----
+    def finish(self) -> None:
+        """Fit the time axis to the frames that came (frame i at i / N) and record the run's
+        length, so that the run reads as an offline one; then every frame's final PSNR."""
+        self.retime(len(self.scene.frames))
+        self.config.train.iterations = self.iteration
+        with torch.no_grad():
+            for frame in self.scene.frames:
+                output = render_frame(self.model, frame.camera, self._when(frame),
+                                      self.background)
+                self.records[frame.index].psnr_final = tissue_psnr(output.rgb, frame)
+
