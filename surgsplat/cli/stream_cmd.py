@@ -32,8 +32,9 @@ def stream_command(
         help="Play a video at this many frames per second instead of its own rate.",
         min=0.01)] = None,
     frames: Annotated[int | None, typer.Option(
-        help="Frames the source will send, when it cannot say (a folder or a camera): the "
-             "clip's time axis is set up for them; a longer stream doubles it.", min=2)] = None,
+        help="Frames the source will send, when it cannot say: the clip's time axis is set "
+             "up for them (a longer stream doubles it), and a folder's stream ends after them "
+             "(a scene folder's poses_bounds.npy says it otherwise).", min=2)] = None,
     polish: Annotated[float, typer.Option(
         help="Seconds of training after the last frame (the learning rates decay over them).",
         min=0.0)] = 0.0,
@@ -45,8 +46,8 @@ def stream_command(
         help="Focal length in pixels of a video or camera (default: a 70 degree horizontal "
              "field of view; a scene folder's own camera otherwise).", min=0.001)] = None,
     idle_timeout: Annotated[float, typer.Option(
-        help="A folder's stream ends after this many seconds without a new frame (and is an "
-             "error when none came).", min=0.01)] = 10.0,
+        help="A folder's stream ends after this many seconds without a new frame, if not "
+             "after its frames (and is an error when none came).", min=0.01)] = 10.0,
     on_bad_frame: Annotated[str, typer.Option(
         help=f"A frame that cannot be read: {' or '.join(BAD_FRAME_ACTIONS)} (the run so far "
              "is kept either way).")] = "skip",

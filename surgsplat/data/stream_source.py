@@ -1,7 +1,8 @@
 """Frames that arrive over time, as from a camera: a video file played at its frame rate, a
 folder that frames are being written into, or a camera device.
 
-A source yields `ArrivedFrame`s in order, each stamped with its arrival time
+A source yields `ArrivedFrame`s in order (until its end, or until the `stop` event it is given
+is set), each stamped with its arrival time
 (`time.monotonic()`): when a played video's clock reaches it, when its file is found complete in
 the folder, or when the camera delivered it. It never drops a frame: a consumer slower than the
 source lets frames wait, and the wait shows as their lag.
@@ -16,6 +17,7 @@ naming its file) in its place, and the source goes on with the next frame.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -107,7 +109,7 @@ class VideoStream:
         self.camera = SourceCamera(None, expected_frames=count if count > 0 else None,
                                    rate=rate or own_rate)
 
-    def frames(self) -> Iterator[Arrival]:
+    def frames(self, stop: threading.Event) -> Iterator[Arrival]:
         capture = cv2.VideoCapture(str(self.path))
         start = time.monotonic()
         index = 0
@@ -121,7 +123,8 @@ class VideoStream:
                                                   "ends there", index)
                     return
                 due = start + index / self.camera.rate
-                time.sleep(max(due - time.monotonic(), 0.0))
+                if stop.wait(max(due - time.monotonic(), 0.0)):
+                    return
                 yield ArrivedFrame(index, max(due, time.monotonic()),
                                    np.ascontiguousarray(bgr[..., ::-1]))
                 index += 1
@@ -145,10 +148,10 @@ class CameraStream:
         self.camera = SourceCamera(None, rate=rate if rate > 0 else None)
         self.timeout = first_frame_timeout
 
-    def frames(self) -> Iterator[Arrival]:
+    def frames(self, stop: threading.Event) -> Iterator[Arrival]:
         index = 0
         try:
-            while True:
+            while not stop.is_set():
                 ok, bgr = self.capture.read()
                 if not ok:
                     if index == 0:
@@ -163,12 +166,14 @@ class CameraStream:
 
 
 class FolderStream:
-    """A folder that frames are written into (see the module docstring); it ends when no new
-    frame has come for `idle_timeout` seconds, and is an error when none came at all."""
+    """A folder that frames are written into (see the module docstring); it ends after the
+    frames it expects (`frames`, else one per row of a scene folder's poses_bounds.npy), or when
+    no new frame has come for `idle_timeout` seconds; it is an error when none came at all."""
 
-    def __init__(self, root: Path, idle_timeout: float):
+    def __init__(self, root: Path, idle_timeout: float, frames: int | None = None):
         self.root = root
         self.idle_timeout = idle_timeout
+        self.frames_given = frames
         self.camera = SourceCamera(None)
         self._read_layout()
 
@@ -194,19 +199,22 @@ class FolderStream:
                 intrinsics = Intrinsics.centred(focal, int(width), int(height))
         self.camera.intrinsics = intrinsics
         self.camera.depth_unit = meta.depth_unit if self.is_scene else "unknown"
-        self.camera.expected_frames = None if self.poses is None else len(self.poses)
+        self.camera.expected_frames = self.frames_given or (None if self.poses is None
+                                                            else len(self.poses))
 
     def _listed(self) -> list[Path]:
         if not self.images.is_dir():
             raise DataError(self.images, "is not a folder (was it removed during the stream?)")
         return list_files(self.images, IMAGE_SUFFIXES)
 
-    def frames(self) -> Iterator[Arrival]:
+    def frames(self, stop: threading.Event) -> Iterator[Arrival]:
         index, last_arrival = 0, time.monotonic()
         waiting_since: float | None = None
-        while True:
+        while not stop.is_set():
             if index == 0:
                 self._read_layout()
+            elif index == self.camera.expected_frames:
+                return
             listed = self._listed()
             if index >= len(listed):
                 if time.monotonic() - last_arrival > self.idle_timeout:
@@ -215,7 +223,7 @@ class FolderStream:
                                                      f" s: expected image files "
                                                      f"({', '.join(IMAGE_SUFFIXES)})")
                     return
-                time.sleep(POLL_SECONDS)
+                stop.wait(POLL_SECONDS)
                 continue
             path = listed[index]
             now = time.monotonic()
@@ -224,7 +232,7 @@ class FolderStream:
                 frame = self._read(index, path, now)
             except BadFrame as err:
                 if now - waiting_since < SETTLE_SECONDS and index + 1 >= len(listed):
-                    time.sleep(POLL_SECONDS)  # perhaps still being written
+                    stop.wait(POLL_SECONDS)  # perhaps still being written
                     continue
                 frame = err
             index, last_arrival, waiting_since = index + 1, now, None
@@ -267,14 +275,16 @@ class FolderStream:
 StreamSource = VideoStream | FolderStream | CameraStream
 
 
-def open_source(source: str, rate: float | None, idle_timeout: float) -> StreamSource:
-    """The source `source` names: a camera index (digits), a folder, or a video file; DataError
-    naming it when it is none of these or does not open."""
+def open_source(source: str, rate: float | None, idle_timeout: float,
+                frames: int | None = None) -> StreamSource:
+    """The source `source` names: a camera index (digits), a folder (ending after `frames`
+    when given), or a video file; DataError naming it when it is none of these or does not
+    open."""
     if source.isdigit():
         return CameraStream(int(source), idle_timeout)
     path = Path(source)
     if path.is_dir():
-        return FolderStream(path, idle_timeout)
+        return FolderStream(path, idle_timeout, frames)
     if not path.exists():
         raise DataError(path, "does not exist: expected a video file, a folder that frames are "
                               "written into, or a camera index")

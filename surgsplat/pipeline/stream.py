@@ -92,7 +92,7 @@ END = object()
 def _read_source(source: StreamSource, items: queue.Queue, stop: threading.Event) -> None:
     """Queue every frame of `source` (an ArrivedFrame or a BadFrame) and the error that ends
     it, if one does, then END."""
-    frames = source.frames()
+    frames = source.frames(stop)
     try:
         while not stop.is_set():
             try:
@@ -239,7 +239,7 @@ def stream_run(config: MethodConfig, options: StreamOptions, note: Note = quiet,
     # PyTorch's optimisers import torch._dynamo when the first is built (about 2 s): import it
     # before the source starts, or the first frames wait for it
     importlib.import_module("torch._dynamo")
-    source = open_source(options.source, options.rate, options.idle_timeout)
+    source = open_source(options.source, options.rate, options.idle_timeout, options.frames)
     items: queue.Queue = queue.Queue()
     stop = threading.Event()
     reader = threading.Thread(target=_read_source, args=(source, items, stop), daemon=True,
@@ -249,7 +249,10 @@ def stream_run(config: MethodConfig, options: StreamOptions, note: Note = quiet,
     try:
         return _stream(config, options, source, items, started, note, on_step)
     finally:
+        # the source's thread ends before this returns: it decodes frames with fd 2 (native
+        # code's stderr) redirected, which would swallow the error this may be returning with
         stop.set()
+        reader.join()
 
 
 def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
@@ -355,6 +358,7 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
     if trainer is None:
         raise stopped_at or SurgsplatError(f"{options.source}: the stream ended before its "
                                            "first frame")
+    trainer.end_of_stream()
     polish_steps = _polish(trainer, options.polish_seconds, recent, train_log, on_step)
     trainer.finish()
     trainer.scene = scene_files.finish()

@@ -99,6 +99,7 @@ class FrameRecord:
     is_test: bool
     trained_at: float | None = None  # seconds since the stream started; None = not yet
     psnr_arrival: float | None = None  # tissue PSNR of the model as the frame arrived
+    psnr_integrated: float | None = None  # ... once it left the replay's recent frames
     psnr_final: float | None = None
     added_gaussians: int = 0
 
@@ -130,6 +131,7 @@ class StreamTrainer(Trainer):
         self.strategy.last = sys.maxsize
         self.strategy.reset_period = 0
         self._replay = torch.Generator().manual_seed(self.config.train.seed)
+        self._train_indices: list[int] = [] if first.is_test else [0]
         self._record(first, first_arrival=True)
 
     # ---- arrivals ----
@@ -143,6 +145,23 @@ class StreamTrainer(Trainer):
         frame.time = frame.index / self.horizon
         self.scene.frames.append(frame)
         self._record(frame, arrival=arrival)
+        if not frame.is_test:
+            self._train_indices.append(frame.index)
+            if len(self._train_indices) > self.stream.recent_frames:
+                self._measure_integrated(self._train_indices[-self.stream.recent_frames - 1])
+
+    @torch.no_grad()
+    def _measure_integrated(self, index: int) -> None:
+        frame = self.scene.frames[index]
+        output = render_frame(self.model, frame.camera, self._when(frame), self.background)
+        self.records[index].psnr_integrated = tissue_psnr(output.rgb, frame)
+
+    def end_of_stream(self) -> None:
+        """The last frame has come: the frames still among the recent ones get their PSNR
+        as integrated."""
+        for index in self._train_indices[-self.stream.recent_frames:]:
+            if self.records[index].psnr_integrated is None:
+                self._measure_integrated(index)
 
     def _record(self, frame: Frame, arrival: float | None = None,
                 first_arrival: bool = False) -> None:
@@ -225,7 +244,7 @@ class StreamTrainer(Trainer):
     # ---- steps ----
     @property
     def has_frames_to_train(self) -> bool:
-        return any(not frame.is_test for frame in self.scene.frames)
+        return bool(self._train_indices)
 
     def _next_frame(self) -> Frame:
         if self._fresh:
@@ -234,11 +253,11 @@ class StreamTrainer(Trainer):
             if record.trained_at is None:
                 record.trained_at = time.monotonic() - self.started
             return frame
-        frames = self.scene.train_frames
-        recent = frames[-self.stream.recent_frames:]
-        pool = recent if float(torch.rand(1, generator=self._replay)) < \
-            self.stream.recent_share else frames
-        return pool[int(torch.randint(len(pool), (1,), generator=self._replay))]
+        seen = self._train_indices
+        pool = (seen[-self.stream.recent_frames:] if float(torch.rand(1, generator=self._replay))
+                < self.stream.recent_share else seen)
+        return self.scene.frames[pool[int(torch.randint(len(pool), (1,),
+                                                        generator=self._replay))]]
 
     def _at_step_size(self, frame: Frame) -> Frame:
         return frame  # a stream trains at full size: a coarse stage needs a run's length

@@ -150,6 +150,7 @@ def test_methods_that_cannot_follow_a_growing_clip_are_refused(small_phantom, tm
                                                                one_error_line):
     result = cli("stream", str(small_phantom), "--out", str(tmp_path / "run"),
                  "--method", "endogaussian", "--idle-timeout", "0.5")
+    assert result.returncode == 2, result
     line = one_error_line(result)
     assert "cannot stream" in line and "'deformation'" in line
 
