@@ -25,6 +25,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -83,6 +84,7 @@ class StreamResult:
     steps_streaming: int
     polish_steps: int
     stopped_by_user: bool
+    streamed_until: float  # seconds from the stream's start to its end (before the polish)
 
 
 END = object()
@@ -149,11 +151,15 @@ class StreamScene:
         self.has_depth = first.depth is not None
         self.fov = torch.ones(self.size, dtype=torch.bool)
         self.store = FrameStore(self._decode)
+        # the files are written on a thread of their own, while training goes on
+        self.writing = ThreadPoolExecutor(1, thread_name_prefix="stream-scene")
+        self.written: dict[int, Future] = {}
         self.first_pose = (np.eye(4) if first.world_to_camera is None
                            else first.world_to_camera)
         self.has_masks = False
 
     def _decode(self, index: int):
+        self.written[index].result()
         stem = frame_stem(index)
         files = FrameFiles(image=self.root / IMAGES_DIR / f"{stem}.png",
                            depth=self.root / DEPTH_DIR / f"{stem}.png" if self.has_depth
@@ -166,7 +172,7 @@ class StreamScene:
 
     def add(self, arrived: ArrivedFrame, tool: np.ndarray | None) -> Frame:
         """Write `arrived` (with tool mask `tool`) as the next frame and return it."""
-        index = self.writer.count
+        index = len(self.written)
         if arrived.image.shape[:2] != self.size:
             raise BadFrame(Path(f"frame {arrived.index}"), f"is {arrived.image.shape[0]}x"
                            f"{arrived.image.shape[1]} (HxW), the stream's frames "
@@ -182,7 +188,8 @@ class StreamScene:
                            "had one" if self.has_masks else "has a tool mask while the first "
                            "had none", arrived.index)
         pose = self.first_pose if arrived.world_to_camera is None else arrived.world_to_camera
-        self.writer.add_frame(arrived.image, arrived.depth, tool, pose)
+        self.written[index] = self.writing.submit(self.writer.add_frame, arrived.image,
+                                                  arrived.depth, tool, pose)
         depth = None if arrived.depth is None else arrived.depth.astype(np.float32)
         self.store.put(index, frame_pixels(arrived.image, depth, tool, self.fov))
         camera = Camera(K=self.K, world_to_camera=torch.tensor(pose, dtype=torch.float32),
@@ -196,6 +203,9 @@ class StreamScene:
 
     def finish(self) -> Scene:
         """Write the scene folder's remaining files and load it back, as any run's scene."""
+        self.writing.shutdown()
+        for written in self.written.values():
+            written.result()  # an error writing a frame's files is raised here
         self.writer.finish()
         return load_scene(self.root)
 
@@ -327,7 +337,7 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
 
     try:
         with stops_between_steps() as stop_requested:
-            while not ended:
+            while not ended or (trainer is not None and trainer.has_fresh_frames):
                 block = trainer is None or not trainer.has_frames_to_train
                 try:
                     receive(items.get(timeout=0.05) if block else items.get_nowait())
@@ -358,7 +368,7 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
     if trainer is None:
         raise stopped_at or SurgsplatError(f"{options.source}: the stream ended before its "
                                            "first frame")
-    trainer.end_of_stream()
+    streamed_until = time.monotonic() - started
     polish_steps = _polish(trainer, options.polish_seconds, recent, train_log, on_step)
     trainer.finish()
     trainer.scene = scene_files.finish()
@@ -368,7 +378,7 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
     records = [trainer.records[i] for i in sorted(trainer.records)]
     log.rewrite(records)
     result = StreamResult(trainer, records, bad_frames, steps_streaming, polish_steps,
-                          stopped_by_user)
+                          stopped_by_user, streamed_until)
     write_text_atomic(out / STREAM_SUMMARY, json.dumps(stream_summary(result, options),
                                                        indent=2) + "\n")
     if stopped_at is not None:
@@ -418,7 +428,9 @@ def stream_summary(result: StreamResult, options: StreamOptions) -> dict:
         "lag_median_s": statistics.median(lags) if lags else None,
         "lag_max_s": max(lags) if lags else None,
         "untrained_frames": sum(not r.is_test and r.lag is None for r in result.records),
+        "first_arrival_s": result.records[0].arrival,
         "last_arrival_s": result.records[-1].arrival,
+        "streamed_until_s": result.streamed_until,
         "train_seconds": trainer.elapsed,
         "gaussians": trainer.model.gaussians.num_gaussians,
         "tool_masks": options.tool_masks,

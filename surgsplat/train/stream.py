@@ -5,18 +5,18 @@ offline run) and `integrate`s every later frame as it comes:
 - the frame's time is its index over the stream's horizon (the frames the time axis is set up
   for; a stream that outgrows it doubles it, compressing the earlier frames' time, and `finish`
   fits it to the frames that came, so that the run is an ordinary one: frame i at i / N);
-- it is rendered at once, which gives its PSNR on arrival and the tissue pixels the model does
-  not explain (too transparent, or off by more than `add_residual_factor` times the frame's
-  median error): Gaussians are added there, at the frame's depth where it has one, else at the
-  rendered depth;
-- a training frame is trained on at the next step, before any replay.
+- a training frame is trained on at the next step, before any replay; that step's render gives
+  its PSNR on arrival and the tissue pixels the model does not explain (rendered too
+  transparent, or off the frame's measured depth): Gaussians are added there, at the frame's
+  depth where it has one, else at the rendered depth (a test frame is rendered on arrival for
+  its PSNR).
 
 Between arrivals each step replays a seen training frame: one of the `recent_frames` latest with
 probability `recent_share`, else any, so that the earliest frames are not forgotten. The
 schedules are written for a run of unknown length: the learning rates stay at `lr_progress` of
 their decay while frames arrive and decay to their final values over the polish that may follow
-the last frame (`start_polish`); densification runs every DensifyConfig.every steps from
-`densify_after_steps` until the polish.
+the last frame (`start_polish`); densification runs every DensifyConfig.every full-size steps
+from `densify_after_steps` on.
 
 A component that follows the clip's time can stream only if it can follow the time axis as it
 grows (`capabilities.Retimable`); loss terms with a window (a fraction of the run) cannot: a
@@ -36,14 +36,15 @@ import torch
 
 from surgsplat.data.scene import Frame, Scene
 from surgsplat.errors import SurgsplatError
+from surgsplat.image.pinhole import backproject
 from surgsplat.methods.config import MethodConfig
 from surgsplat.model.capabilities import Retimable
 from surgsplat.model.component import Component, FrameTime, SceneInfo, SetupContext
 from surgsplat.model.dynamic import render_frame
 from surgsplat.model.gaussians import GaussianModel
-from surgsplat.image.pinhole import backproject
+from surgsplat.render.render import RenderOutput
 from surgsplat.train.per_gaussian import append_gaussians
-from surgsplat.train.trainer import Trainer, declared_per_gaussian, tissue_psnr
+from surgsplat.train.trainer import StepStats, Trainer, declared_per_gaussian, tissue_psnr
 
 DEFAULT_HORIZON = 128
 """Frames a stream's time axis is set up for when the source does not say how many it sends."""
@@ -55,21 +56,25 @@ class StreamConfig:
 
     recent_frames: int = field(default=8, metadata={"range": "[1, inf)"})
     """The latest training frames that replay favours."""
-    recent_share: float = field(default=0.5, metadata={"range": "[0, 1]"})
-    """Share of the replay steps spent on the `recent_frames` latest frames."""
-    lr_progress: float = field(default=0.3, metadata={"range": "[0, 1]"})
+    recent_share: float = field(default=0.2, metadata={"range": "[0, 1]"})
+    """Share of the replay steps spent on the `recent_frames` latest frames (the rest replay
+    any seen frame alike)."""
+    lr_progress: float = field(default=0.0, metadata={"range": "[0, 1]"})
     """Where the decaying learning rates are held while frames arrive, from 0 (initial) to 1
-    (final); the polish decays them from here to 1."""
+    (final); the polish decays them from here to 1. A stream's model is far from converged
+    while frames come: the initial rates serve it best."""
     densify_after_steps: int = field(default=100, metadata={"range": "[1, inf)"})
     """Densification starts after this many steps."""
+    downscale: int = field(default=2, metadata={"range": "[1, 16]"})
+    """Frames are trained on at 1 / downscale of their size while they arrive (the polish
+    trains at full size): cheaper steps, more of them per arrival."""
     add_alpha_below: float = field(default=0.5, metadata={"range": "[0, 1]"})
-    """Tissue pixels of a new frame rendered less opaque than this get new Gaussians."""
-    add_residual_factor: float = field(default=4.0, metadata={"range": "(0, inf)"})
-    """Tissue pixels whose error (mean over the channels) is above this times the frame's
-    median error get new Gaussians."""
-    add_min_residual: float = field(default=0.05, metadata={"range": "[0, 1]"})
-    """...and above this error (of colours in [0, 1]), so that a well explained frame adds
-    none."""
+    """Tissue pixels of a new frame rendered less opaque than this get new Gaussians: the
+    model has nothing there yet."""
+    add_depth_error: float = field(default=0.05, metadata={"range": "(0, inf)"})
+    """Tissue pixels whose rendered depth is off the frame's measured depth by more than this
+    fraction of it get new Gaussians: the surface there is not where the model has one (a
+    colour error alone is left to the training steps)."""
     add_stride: int = field(default=2, metadata={"range": "[1, inf)"})
     """New Gaussians come from every add_stride-th pixel in x and y."""
 
@@ -99,7 +104,7 @@ class FrameRecord:
     is_test: bool
     trained_at: float | None = None  # seconds since the stream started; None = not yet
     psnr_arrival: float | None = None  # tissue PSNR of the model as the frame arrived
-    psnr_integrated: float | None = None  # ... once it left the replay's recent frames
+    psnr_integrated: float | None = None  # at its last step among the replay's recent frames
     psnr_final: float | None = None
     added_gaussians: int = 0
 
@@ -132,7 +137,8 @@ class StreamTrainer(Trainer):
         self.strategy.reset_period = 0
         self._replay = torch.Generator().manual_seed(self.config.train.seed)
         self._train_indices: list[int] = [] if first.is_test else [0]
-        self._record(first, first_arrival=True)
+        self._stepped = -1  # the frame of the latest step
+        self._record(first)
 
     # ---- arrivals ----
     def integrate(self, frame: Frame, arrival: float) -> None:
@@ -147,33 +153,19 @@ class StreamTrainer(Trainer):
         self._record(frame, arrival=arrival)
         if not frame.is_test:
             self._train_indices.append(frame.index)
-            if len(self._train_indices) > self.stream.recent_frames:
-                self._measure_integrated(self._train_indices[-self.stream.recent_frames - 1])
 
-    @torch.no_grad()
-    def _measure_integrated(self, index: int) -> None:
-        frame = self.scene.frames[index]
-        output = render_frame(self.model, frame.camera, self._when(frame), self.background)
-        self.records[index].psnr_integrated = tissue_psnr(output.rgb, frame)
-
-    def end_of_stream(self) -> None:
-        """The last frame has come: the frames still among the recent ones get their PSNR
-        as integrated."""
-        for index in self._train_indices[-self.stream.recent_frames:]:
-            if self.records[index].psnr_integrated is None:
-                self._measure_integrated(index)
-
-    def _record(self, frame: Frame, arrival: float | None = None,
-                first_arrival: bool = False) -> None:
+    def _record(self, frame: Frame, arrival: float | None = None) -> None:
+        """The frame's record; a test frame's PSNR on arrival (a training frame's comes with
+        its first step, `step`); a training frame waits for that step."""
         arrival = time.monotonic() if arrival is None else arrival
         record = FrameRecord(frame.index, arrival - self.started, frame.is_test)
         self.records[frame.index] = record
-        with torch.no_grad():
-            output = render_frame(self.model, frame.camera, self._when(frame), self.background)
+        if frame.is_test:
+            with torch.no_grad():
+                output = render_frame(self.model, frame.camera, self._when(frame),
+                                      self.background)
             record.psnr_arrival = tissue_psnr(output.rgb, frame)
-            if not frame.is_test and not first_arrival:
-                record.added_gaussians = self._add_gaussians(frame, output)
-        if not frame.is_test:
+        else:
             self._fresh.append(frame)
 
     def _when(self, frame: Frame) -> FrameTime:
@@ -193,25 +185,24 @@ class StreamTrainer(Trainer):
             frame.time = frame.index / horizon
 
     @torch.no_grad()
-    def _add_gaussians(self, frame: Frame, output) -> int:
+    def _add_gaussians(self, frame: Frame, output: RenderOutput) -> int:
         """Gaussians at the tissue pixels of `frame` that `output` (its render) does not
         explain; returns how many were added (none past the Gaussian budget)."""
         stream = self.stream
-        error = (output.rgb - frame.image).abs().mean(dim=2)  # [H, W]
-        tissue = frame.tissue
-        if not tissue.any():
-            return 0
-        threshold = max(stream.add_residual_factor * float(error[tissue].median()),
-                        stream.add_min_residual)
-        wanted = tissue & ((output.alpha < stream.add_alpha_below) | (error > threshold))
+        alpha, rendered = output.alpha.detach(), output.depth.detach()
+        wanted = frame.tissue & (alpha < stream.add_alpha_below)
+        if frame.depth is not None:
+            measured = frame.depth
+            off = (rendered - measured).abs() > stream.add_depth_error * measured
+            wanted |= frame.tissue & (measured > 0) & off
         stride = torch.zeros_like(wanted)
         stride[::stream.add_stride, ::stream.add_stride] = True
         wanted &= stride
         room = self.strategy.max_gaussians - self.model.gaussians.num_gaussians
         if room <= 0 or not wanted.any():
             return 0
-        depth = frame.depth if frame.depth is not None else torch.zeros_like(output.depth)
-        rendered = output.depth.where(output.alpha > 0.5, torch.zeros_like(output.depth))
+        depth = frame.depth if frame.depth is not None else torch.zeros_like(rendered)
+        rendered = rendered.where(alpha > 0.5, torch.zeros_like(rendered))
         if not bool((rendered > 0).any()):
             return 0
         fallback = rendered.where(rendered > 0, rendered[rendered > 0].median())
@@ -243,6 +234,11 @@ class StreamTrainer(Trainer):
 
     # ---- steps ----
     @property
+    def has_fresh_frames(self) -> bool:
+        """Whether a training frame has arrived and not yet been trained on."""
+        return bool(self._fresh)
+
+    @property
     def has_frames_to_train(self) -> bool:
         return bool(self._train_indices)
 
@@ -252,15 +248,43 @@ class StreamTrainer(Trainer):
             record = self.records[frame.index]
             if record.trained_at is None:
                 record.trained_at = time.monotonic() - self.started
-            return frame
-        seen = self._train_indices
-        pool = (seen[-self.stream.recent_frames:] if float(torch.rand(1, generator=self._replay))
-                < self.stream.recent_share else seen)
-        return self.scene.frames[pool[int(torch.randint(len(pool), (1,),
-                                                        generator=self._replay))]]
+        else:  # the polish replays every frame alike
+            seen = self._train_indices
+            recent = self._polish is None and \
+                float(torch.rand(1, generator=self._replay)) < self.stream.recent_share
+            pool = seen[-self.stream.recent_frames:] if recent else seen
+            frame = self.scene.frames[pool[int(torch.randint(len(pool), (1,),
+                                                             generator=self._replay))]]
+        self._stepped = frame.index
+        return frame
+
+    def step(self) -> StepStats:
+        """One step. A frame's first step gives its PSNR on arrival, and its render the pixels
+        that get new Gaussians (`_add_gaussians`; not for the first frame, which the initial
+        points came from); while the frame is among the recent ones, its PSNR in a step is its
+        PSNR as integrated."""
+        first = self._fresh[0].index if self._fresh else None
+        stats = super().step()
+        record = self.records[self._stepped]
+        if self._stepped == first:
+            record.psnr_arrival = stats.psnr
+            if first > 0:
+                at_step_size = self._at_step_size(self.scene.frames[first])
+                record.added_gaussians = self._add_gaussians(at_step_size, self.last_output)
+        if self._stepped in self._train_indices[-self.stream.recent_frames:]:
+            record.psnr_integrated = stats.psnr
+        return stats
 
     def _at_step_size(self, frame: Frame) -> Frame:
-        return frame  # a stream trains at full size: a coarse stage needs a run's length
+        factor = 1 if self._polish is not None else self.stream.downscale
+        if factor != self._downscale_factor:
+            self._downscaled.clear()
+            self._downscale_factor = factor
+        if factor == 1:
+            return frame
+        if frame.index not in self._downscaled:
+            self._downscaled[frame.index] = frame.downscaled(factor)
+        return self._downscaled[frame.index]
 
     def lr_progress(self) -> float:
         held = self.stream.lr_progress
@@ -271,10 +295,12 @@ class StreamTrainer(Trainer):
         return held + (1.0 - held) * done
 
     def start_polish(self, steps: int) -> None:
-        """The next `steps` steps are the polish: no densification, the rates decay to their
-        final values."""
+        """The next `steps` steps are the polish: full-size frames, the rates decaying to their
+        final values, densification over the polish's first DensifyConfig.stop of its steps
+        (as over an offline run's)."""
         self._polish = (self.iteration, self.iteration + steps)
-        self.strategy.last = self.iteration
+        self.strategy.first = self.iteration + 1
+        self.strategy.last = self.iteration + round(self.config.densify.stop * steps)
 
     # ---- the end ----
     def finish(self) -> None:

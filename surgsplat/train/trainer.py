@@ -41,6 +41,7 @@ from surgsplat.model.dynamic import SplatModel
 from surgsplat.model.gaussians import GEOMETRY_KEYS, GaussianModel
 from surgsplat.model.init_points import initial_points
 from surgsplat.render.rasterize import NonFiniteError
+from surgsplat.render.render import RenderOutput
 from surgsplat.train.checkpoint import (RESUME_ENTRIES, build_components,
                                         load_latest_or_previous, model_from_state, model_state,
                                         optimizer_state_in_order, save_atomic)
@@ -232,6 +233,7 @@ class Trainer:
         self._downscaled: dict[int, Frame] = {}  # frame index -> the frame at the current factor
         self._downscale_factor = 1
         self.background = torch.tensor(self.config.train.background, dtype=torch.float32)
+        self.last_output: RenderOutput | None = None  # the latest step's render
 
     # ---- optimiser ----
     def _param_groups(self) -> list[ParamGroup]:
@@ -339,6 +341,7 @@ class Trainer:
                                              output.projection.radii.detach(), densify_weights,
                                              self.model.opacity_factor)
         self.model.after_step(self.iteration)
+        self.last_output = output
         self.elapsed += time.perf_counter() - started
         with torch.no_grad():
             psnr = tissue_psnr(output.rgb, frame)
