@@ -38,6 +38,9 @@ def stream_command(
     polish: Annotated[float, typer.Option(
         help="Seconds of training after the last frame (the learning rates decay over them).",
         min=0.0)] = 0.0,
+    checkpoint_every: Annotated[float, typer.Option(
+        help="Seconds between checkpoints while the stream runs (and after its first frame): "
+             "what `surgsplat view RUN` shows meanwhile.", min=1.0)] = 10.0,
     tool_masks: Annotated[str, typer.Option(
         help=f"Tool masks: {', '.join(MASK_SOURCES)} (given: a scene folder's masks/; auto: "
              "the automatic segmenter on each frame as it arrives, one frame behind).")
@@ -63,7 +66,8 @@ def stream_command(
     method_config = build_method_config(method, config, set_ or [])
     options = StreamOptions(source=source, out=out, rate=rate, frames=frames,
                             idle_timeout=idle_timeout, on_bad_frame=on_bad_frame,
-                            tool_masks=tool_masks, focal=focal, polish_seconds=polish)
+                            tool_masks=tool_masks, focal=focal, polish_seconds=polish,
+                            checkpoint_seconds=checkpoint_every)
     console = Console(soft_wrap=True)  # a line per note, whatever the terminal's width
     with new_run_folder(out), progress_bar(
             TextColumn("{task.fields[frames]} frames"), TextColumn("PSNR {task.fields[psnr]:.2f}"),

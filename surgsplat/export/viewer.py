@@ -8,7 +8,8 @@ first training camera; a time slider with play/pause scrubs through the clip, an
 selector shows any channel the model declares (`SplatModel.channel_descriptors`: the colour,
 depth and normals, and those its components add, e.g. reflectance or illumination), each as its
 descriptor says (`export.channel_image`), and the tool-free colour of a method that separates the
-tool (its tissue-only render).
+tool (its tissue-only render). A run still being trained (`surgsplat stream`) is followed: each
+newer checkpoint replaces the one shown, at its latest frame.
 
 viser's client is bundled with the Python package and served from this machine: the page needs
 no internet access. Camera poses follow viser's convention, P_world = R p_camera + t with OpenCV
@@ -21,6 +22,7 @@ import math
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +37,8 @@ from surgsplat.model.dynamic import SplatModel, render_frame
 from surgsplat.render.rotation import quaternion_to_matrix
 from surgsplat.train.run import TrainedRun
 
+FOLLOW_SECONDS = 1.0
+"""How often a viewer of a run being trained asks for a newer state of it."""
 TOOL_FREE = "tool_free"
 """Channel: the colour of the tissue-only render, for methods that separate the tool."""
 
@@ -109,7 +113,11 @@ class RunViewer:
     there; see check_can_serve); see the module docstring."""
 
     def __init__(self, run: TrainedRun, host: str = "127.0.0.1", port: int = 8080,
-                 height: int | None = None, moving_scale: float = 0.5, fps: float = 10.0):
+                 height: int | None = None, moving_scale: float = 0.5, fps: float = 10.0,
+                 follow: Callable[[], TrainedRun | None] | None = None):
+        """follow: for a run still being trained (a stream), asked every FOLLOW_SECONDS for a
+        newer state of it (None: none yet); the viewer then shows that one, at its latest
+        frame while "latest frame" is ticked."""
         try:
             import viser
         except ImportError as err:
@@ -136,6 +144,22 @@ class RunViewer:
         self._stop = threading.Event()
         self._player = threading.Thread(target=self._play_loop, daemon=True)
         self._player.start()
+        if follow is not None:
+            self.latest = gui.add_checkbox("latest frame", initial_value=True)
+            threading.Thread(target=self._follow_loop, args=(follow,), daemon=True).start()
+
+    def _follow_loop(self, follow: Callable[[], TrainedRun | None]) -> None:
+        while not self._stop.wait(FOLLOW_SECONDS):
+            newer = follow()
+            if newer is None:
+                continue
+            with self.lock:
+                self.run = newer
+                last = len(newer.scene.frames) - 1
+                self.time_slider.max = last
+                if self.latest.value or int(self.time_slider.value) > last:
+                    self.time_slider.value = last
+            self.refresh_all()
 
     # ---- cameras ----
     def _connect(self, client) -> None:

@@ -12,7 +12,8 @@ folder and the run's files are finished, so that RUN is an ordinary run (`eval`,
 
 RUN/stream_log.jsonl gets one line per frame when it is first trained on (test frames: when they
 arrive), and is rewritten at the end with every frame's final PSNR. RUN/stream.json sums the
-stream up. Checkpoints are written every train.checkpoint_seconds and at the end.
+stream up. A checkpoint is written after the first frame, every `checkpoint_seconds` and at the
+end; until the end, RUN/live.json says what the latest was trained on (`stream_scene`).
 """
 
 from __future__ import annotations
@@ -25,31 +26,22 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from surgsplat.atomic import write_text_atomic
 from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks
-from surgsplat.data.frame_store import FrameStore
-from surgsplat.data.layout import (DEPTH_DIR, IMAGES_DIR, MASKS_DIR, SceneMeta, SceneWriter,
-                                   frame_stem, max_depth)
-from surgsplat.data.scene import (Camera, Frame, FrameFiles, Scene, frame_pixels, is_test_index,
-                                  load_scene, read_frame_files)
-from surgsplat.data.stream_source import (ArrivedFrame, BadFrame, StreamSource,
-                                          camera_intrinsics, open_source)
+from surgsplat.data.stream_source import ArrivedFrame, BadFrame, StreamSource, open_source
 from surgsplat.errors import SurgsplatError
 from surgsplat.methods.config import MethodConfig
+from surgsplat.pipeline.stream_scene import LIVE_FILE, SCENE_DIR, StreamScene
 from surgsplat.pipeline.train import Note, quiet
 from surgsplat.train.stream import DEFAULT_HORIZON, FrameRecord, StreamConfig, StreamTrainer
 from surgsplat.train.trainer import (CHECKPOINT, LOG_EVERY, LOG_FILE, BUDGET_WINDOW, StepStats,
                                      stops_between_steps)
 
-SCENE_DIR = "scene"
-"""RUN/scene: the frames of the stream, as a scene folder."""
 STREAM_LOG = "stream_log.jsonl"
 STREAM_SUMMARY = "stream.json"
 BAD_FRAME_ACTIONS = ("skip", "stop")
@@ -71,6 +63,7 @@ class StreamOptions:
     tool_masks: str = "given"
     focal: float | None = None  # pixels; None: the source's, else an assumed field of view
     polish_seconds: float = 0.0
+    checkpoint_seconds: float = 10.0  # a checkpoint (and RUN/live.json) this often
     settings: StreamConfig = field(default_factory=StreamConfig)
 
 
@@ -132,82 +125,6 @@ class AutoMasks:
 
     def next_mask(self) -> np.ndarray:
         return next(self._masks).mask
-
-
-class StreamScene:
-    """RUN/scene written frame by frame, and its frames served to training through a bounded
-    cache that decodes evicted frames from the written files."""
-
-    def __init__(self, root: Path, first: ArrivedFrame, source: StreamSource, focal: float | None,
-                 description: str):
-        height, width = first.image.shape[:2]
-        intrinsics = camera_intrinsics(source.camera.intrinsics, width, height, focal)
-        depth_unit = source.camera.depth_unit if first.depth is not None else "unknown"
-        self.meta = SceneMeta(depth_unit=depth_unit, intrinsics=intrinsics, source=description)
-        self.writer = SceneWriter(root, intrinsics.fx, self.meta)
-        self.root = root
-        self.size = (height, width)
-        self.K = torch.tensor(intrinsics.matrix(), dtype=torch.float32)
-        self.has_depth = first.depth is not None
-        self.fov = torch.ones(self.size, dtype=torch.bool)
-        self.store = FrameStore(self._decode)
-        # the files are written on a thread of their own, while training goes on
-        self.writing = ThreadPoolExecutor(1, thread_name_prefix="stream-scene")
-        self.written: dict[int, Future] = {}
-        self.first_pose = (np.eye(4) if first.world_to_camera is None
-                           else first.world_to_camera)
-        self.has_masks = False
-
-    def _decode(self, index: int):
-        self.written[index].result()
-        stem = frame_stem(index)
-        files = FrameFiles(image=self.root / IMAGES_DIR / f"{stem}.png",
-                           depth=self.root / DEPTH_DIR / f"{stem}.png" if self.has_depth
-                           else None,
-                           mask=self.root / MASKS_DIR / f"{stem}.png" if self.has_masks
-                           else None,
-                           depth_scale=self.meta.depth_scale,
-                           depth_limit=max_depth(self.meta.depth_unit), size=self.size)
-        return frame_pixels(*read_frame_files(files, None), self.fov)
-
-    def add(self, arrived: ArrivedFrame, tool: np.ndarray | None) -> Frame:
-        """Write `arrived` (with tool mask `tool`) as the next frame and return it."""
-        index = len(self.written)
-        if arrived.image.shape[:2] != self.size:
-            raise BadFrame(Path(f"frame {arrived.index}"), f"is {arrived.image.shape[0]}x"
-                           f"{arrived.image.shape[1]} (HxW), the stream's frames "
-                           f"{self.size[0]}x{self.size[1]}", arrived.index)
-        if (arrived.depth is not None) != self.has_depth:
-            raise BadFrame(Path(f"frame {arrived.index}"), "has no depth while the first had "
-                           "depth" if self.has_depth else "has depth while the first had none",
-                           arrived.index)
-        if index == 0:
-            self.has_masks = tool is not None
-        elif (tool is not None) != self.has_masks:
-            raise BadFrame(Path(f"frame {arrived.index}"), "has no tool mask while the first "
-                           "had one" if self.has_masks else "has a tool mask while the first "
-                           "had none", arrived.index)
-        pose = self.first_pose if arrived.world_to_camera is None else arrived.world_to_camera
-        self.written[index] = self.writing.submit(self.writer.add_frame, arrived.image,
-                                                  arrived.depth, tool, pose)
-        depth = None if arrived.depth is None else arrived.depth.astype(np.float32)
-        self.store.put(index, frame_pixels(arrived.image, depth, tool, self.fov))
-        camera = Camera(K=self.K, world_to_camera=torch.tensor(pose, dtype=torch.float32),
-                        width=self.size[1], height=self.size[0])
-        return Frame.stored(index, 0.0, is_test_index(index), camera, self.store)
-
-    def scene(self, frames: list[Frame]) -> Scene:
-        """The scene of `frames` (training grows its list)."""
-        return Scene(root=self.root, frames=frames, meta=self.meta, near=0.01, far=1000.0,
-                     has_depth=self.has_depth, has_masks=self.has_masks, has_fov=False)
-
-    def finish(self) -> Scene:
-        """Write the scene folder's remaining files and load it back, as any run's scene."""
-        self.writing.shutdown()
-        for written in self.written.values():
-            written.result()  # an error writing a frame's files is raised here
-        self.writer.finish()
-        return load_scene(self.root)
 
 
 class _LiveLog:
@@ -289,17 +206,24 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
         if scene_files is None:
             out.mkdir(parents=True, exist_ok=True)
             scene_files = StreamScene(out / SCENE_DIR, arrived, source, options.focal,
-                                      f"stream of {options.source}")
+                                      f"stream of {options.source}", tool)
             frame = scene_files.add(arrived, tool)
             horizon = options.frames or source.camera.expected_frames or DEFAULT_HORIZON
             trainer = StreamTrainer(config, scene_files.scene([frame]), out, horizon,
                                     options.settings, started)
             trainer.records[0].arrival = arrived.arrival - started
             trainer.write_run_files()
+            save()
             log = _LiveLog(out / STREAM_LOG)
             train_log = open(out / LOG_FILE, "w", buffering=1)
             return
         trainer.integrate(scene_files.add(arrived, tool), arrived.arrival)
+
+    def save() -> None:
+        nonlocal last_save
+        trainer.save()
+        scene_files.write_live(out, len(trainer.scene.frames), trainer.horizon)
+        last_save = time.monotonic()
 
     def bad(err: BadFrame) -> None:
         bad_frames.append(str(err))
@@ -358,9 +282,8 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
                 log.update(trainer.records)
                 if on_step:
                     on_step(stats, len(trainer.scene.frames))
-                if time.monotonic() - last_save >= trainer.config.train.checkpoint_seconds:
-                    trainer.save()
-                    last_save = time.monotonic()
+                if time.monotonic() - last_save >= options.checkpoint_seconds:
+                    save()
     except BadFrame as err:
         stopped_at = err
     else:
@@ -375,6 +298,7 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
     train_log.close()
     trainer.write_run_files()
     trainer.save()
+    (out / LIVE_FILE).unlink()  # an ordinary run from here on
     records = [trainer.records[i] for i in sorted(trainer.records)]
     log.rewrite(records)
     result = StreamResult(trainer, records, bad_frames, steps_streaming, polish_steps,

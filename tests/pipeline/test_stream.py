@@ -14,10 +14,12 @@ from pathlib import Path
 import pytest
 
 from surgsplat.data.layout import DEPTH_DIR, IMAGES_DIR, MASKS_DIR, META_FILE, POSES_FILE
-from surgsplat.methods.registry import PRESETS
+from surgsplat.export.viewer import FOLLOW_SECONDS, RunViewer, view_image
+from surgsplat.methods.registry import PRESETS, method_config
 from surgsplat.model.component import SceneInfo
 from surgsplat.pipeline.evaluate import evaluate
-from surgsplat.pipeline.stream import STREAM_LOG, STREAM_SUMMARY
+from surgsplat.pipeline.stream import STREAM_LOG, STREAM_SUMMARY, StreamOptions, stream_run
+from surgsplat.pipeline.stream_scene import LIVE_FILE, LiveFollower, load_live_run
 from surgsplat.train.checkpoint import build_components
 from surgsplat.train.run import LOCK_FILE, load_trained_run
 from surgsplat.train.stream import check_streamable
@@ -160,3 +162,40 @@ def test_deform3dgs_streams():
     growing clip and its loss terms have no window."""
     config = PRESETS["deform3dgs"].build().resolved(SceneInfo(16, 160, 128, tuple(range(16))))
     check_streamable(config, build_components(config))
+
+
+def test_view_follows_a_stream_in_progress(small_phantom, tmp_path):
+    """While a stream trains, RUN/live.json lets the run be read at its latest checkpoint, and
+    a viewer given a LiveFollower moves on to each newer one, then to the finished run."""
+    pytest.importorskip("viser")
+    run = tmp_path / "run"
+    run.mkdir()
+    writer = write_frames(small_phantom, tmp_path / "incoming", 6.0)
+    options = StreamOptions(source=str(tmp_path / "incoming"), out=run, idle_timeout=5.0,
+                            checkpoint_seconds=1.0)
+    config = method_config("deform3dgs")
+    streaming = threading.Thread(target=stream_run, args=(config, options))
+    streaming.start()
+    deadline = time.monotonic() + 60
+    while not (run / LIVE_FILE).is_file() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    live = load_live_run(run)
+    total = len(list((small_phantom / IMAGES_DIR).iterdir()))
+    assert 1 <= len(live.scene.frames) < total
+    image = view_image(live, live.scene.frames[-1].camera, len(live.scene.frames) - 1, "rgb")
+    assert image.shape == (128, 160, 3) and image.std() > 0
+    viewer = RunViewer(live, port=0, follow=LiveFollower(run, live))
+    try:
+        counts = {len(live.scene.frames)}
+        while streaming.is_alive() or (run / LIVE_FILE).exists() or \
+                len(viewer.run.scene.frames) != total:
+            assert time.monotonic() < deadline, counts
+            counts.add(len(viewer.run.scene.frames))
+            time.sleep(FOLLOW_SECONDS / 10)
+        assert len(counts) > 2  # it showed the stream's checkpoints as they came
+        assert viewer.time_slider.max == total - 1 and viewer.time_slider.value == total - 1
+        assert viewer.run.iteration == load_trained_run(run).iteration
+    finally:
+        viewer.stop()
+        streaming.join()
+        writer.join()
