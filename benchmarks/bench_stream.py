@@ -41,9 +41,10 @@ from pathlib import Path
 import surgsplat  # noqa: F401  (before torch: sets surgsplat's OpenMP wait policy)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_render import full_pulling_phantom, write_report  # noqa: E402
+from bench_render import full_pulling_phantom, results_path, write_report  # noqa: E402
 from bench_train import REFERENCE_PROBE, probe_evals_per_s, real_clip_scene  # noqa: E402
 
+from surgsplat.render import native  # noqa: E402
 from surgsplat.data.layout import (DEPTH_DIR, IMAGES_DIR, MASKS_DIR, META_FILE,  # noqa: E402
                                    POSES_FILE)
 from surgsplat.train.run import LOCK_FILE  # noqa: E402
@@ -265,12 +266,14 @@ def main() -> None:
             for name in args.scenes for rate in args.rates for seed in range(args.seeds)]
     probe = statistics.median([probe_before, probe_evals_per_s()])
     merged = mean_rows(rows)
-    out = write_report("bench_stream", {
+    out = args.out or results_path("bench_stream", native.system_info())
+    plot(rows, out.with_suffix(".png"))
+    write_report("bench_stream", {
         "probe_evals_per_s": probe, "probe_scale": probe / REFERENCE_PROBE,
         "threads": args.threads, "polish_seconds": POLISH_SECONDS,
         "highest_rate_followed": {name: highest_rate(merged, name) for name in args.scenes},
-        "rows": merged, "targets": targets(merged), "runs": rows}, args.out)
-    plot(rows, out.with_suffix(".png"))
+        "rows": merged, "targets": targets(merged), "plot": out.with_suffix(".png").name,
+        "runs": rows}, out)
     print(out)
 
 

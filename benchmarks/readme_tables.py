@@ -3,9 +3,9 @@ benchmarks/results/<benchmark>-*.json becomes one table, placed between the
 `<!-- <benchmark>:begin -->` and `<!-- <benchmark>:end -->` markers of the one page under docs/
 that holds them, for the benchmarks bench_render, bench_train, bench_densify_split,
 bench_threads, bench_outputs, bench_auto_masks, bench_shading_depth, bench_batch,
-bench_long_clip, bench_articulation, bench_faults, bench_onnx_models, bench_poses, op_census and
-bench_camera_grads (each must have its region in some page), for every suite of bench_methods
-whose region `bench_methods_<suite>` a page has, and for every region
+bench_long_clip, bench_articulation, bench_faults, bench_onnx_models, bench_poses, op_census,
+bench_camera_grads and bench_stream (each must have its region in some page), for every suite
+of bench_methods whose region `bench_methods_<suite>` a page has, and for every region
 `preset_<suite>_<preset>` (a method page: that preset's rows and targets of one bench_methods
 suite, e.g. preset_fidelity_endogsg or preset_speed_deform3dgs). No figure in those regions is
 typed by hand. The name is historical: the tables were the README's before they moved to docs/.
@@ -602,7 +602,50 @@ RENDERERS = {"bench_render": render_table, "bench_train": train_table,
              "bench_long_clip_validation": long_clip_validation_table,
              "bench_articulation": articulation_table,
              "bench_faults": faults_table, "bench_onnx_models": onnx_models_table,
-             "bench_poses": poses_table, "bench_camera_grads": camera_grads_table}
+             "bench_poses": poses_table, "bench_camera_grads": camera_grads_table,
+             "bench_stream": stream_table}
+def stream_table(report: dict, results: str = "benchmarks/results") -> str:
+    """Markdown for one bench_stream report: a row per scene and rate (means over the seeds),
+    the highest rate followed, issue 57's targets, and the plot of lag and PSNR over the
+    streams (a link into `results`)."""
+    system = report["system"]
+    seeds = sorted({len(row["seeds"]) for row in report["rows"]})
+    lines = [
+        f"{report['cpu']} ({system['logical_cpus']} logical CPUs, --threads "
+        f"{report['threads']}, probe {report['probe_evals_per_s']:.2g} evaluations/s), "
+        f"{report['date'][:10]}, `{report['command']}`; means over {'/'.join(map(str, seeds))} "
+        f"seed(s); psnr_tissue on the test frames; offline = `surgsplat train --budget` for the "
+        f"stream's wall time (first frame to last step), polished = a stream with "
+        f"`--polish {report['polish_seconds']:g}` against an offline run of that much longer:",
+        "",
+        "| scene | fps | frames | lag median s | lag max s | untrained | steps | psnr_tissue "
+        "| offline | polished | offline | forgetting dB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["rows"]:
+        lines.append(
+            f"| {row['scene']} | {row['rate']:g} | {cell(row, 'frames', 'd')} "
+            f"| {cell(row, 'lag_median_s', '.2f')} | {cell(row, 'lag_max_s', '.2f')} "
+            f"| {cell(row, 'untrained_frames', 'd')} | {cell(row, 'steps', 'd')} "
+            f"| {cell(row, 'psnr_tissue', '.2f')} | {cell(row, 'psnr_tissue_offline', '.2f')} "
+            f"| {cell(row, 'psnr_tissue_polished', '.2f')} "
+            f"| {cell(row, 'psnr_tissue_polished_offline', '.2f')} "
+            f"| {cell(row, 'forgetting_db', '.2f')} |")
+    followed = ", ".join(f"{scene} {'none' if rate is None else f'{rate:g} fps'}"
+                         for scene, rate in report["highest_rate_followed"].items())
+    lines += ["", f"Highest rate followed (median lag <= 1 s, max <= 3 s, every frame trained "
+                  f"on): {followed}."]
+    lines += ["", "| case | target | measured | bound | met |", "|---|---|---|---|---|"]
+    for target in report["targets"]:
+        spec = "d" if target["metric"] == "untrained_frames" else ".2f"
+        lines.append(f"| {target['case']} | {target['rule']} | {cell(target, 'value', spec)} "
+                     f"| {cell(target, 'bound', spec)} "
+                     f"| {'yes' if target['met'] else '**no**'} |")
+    lines += ["", f"![lag of each frame over the stream, and PSNR per frame on arrival, once "
+                  f"integrated and at the end]({results}/{report['plot']})"]
+    return "\n".join(lines)
+
+
 METHOD_SUITE_REGION = re.compile(r"<!-- (bench_methods_\w+):begin -->")
 """A region of one bench_methods suite, e.g. bench_methods_endoplanar."""
 PRESET_REGION = re.compile(r"<!-- (preset_[a-z0-9]+_\w+):begin -->")
@@ -639,6 +682,8 @@ def renderer(benchmark: str, results: str):
         return lambda report: preset_table(report, parts[1])
     if benchmark == "bench_train":
         return lambda report: train_table(report, results)
+    if benchmark == "bench_stream":
+        return lambda report: stream_table(report, results)
     return methods_table if benchmark.startswith("bench_methods_") else RENDERERS[benchmark]
 
 

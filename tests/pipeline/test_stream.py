@@ -11,6 +11,7 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
 import pytest
 
 from surgsplat.data.layout import DEPTH_DIR, IMAGES_DIR, MASKS_DIR, META_FILE, POSES_FILE
@@ -199,3 +200,23 @@ def test_view_follows_a_stream_in_progress(small_phantom, tmp_path):
         viewer.stop()
         streaming.join()
         writer.join()
+
+
+def test_video_with_automatic_tool_masks(small_phantom, tmp_path, cli):
+    """A video file played at --rate, its tool masks found by the automatic segmenter as the
+    frames arrive: every frame is in the run's scene with a mask, arriving 1 / rate apart."""
+    video = tmp_path / "clip.mp4"
+    images = sorted((small_phantom / IMAGES_DIR).iterdir())
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (160, 128))
+    for image in images:
+        writer.write(cv2.imread(str(image)))
+    writer.release()
+    run = tmp_path / "run"
+    result = cli("stream", str(video), "--out", str(run), "--rate", "20", "--tool-masks", "auto")
+    assert result.returncode == 0, result.stderr
+    log = read_log(run)
+    assert len(log) == len(images)
+    arrivals = [entry["arrival"] for entry in log]
+    assert arrivals[-1] - arrivals[0] == pytest.approx((len(images) - 1) / 20, rel=0.2)
+    assert len(list((run / "scene" / MASKS_DIR).iterdir())) == len(images)
+    assert json.loads((run / STREAM_SUMMARY).read_text())["tool_masks"] == "auto"
