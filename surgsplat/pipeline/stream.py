@@ -34,7 +34,7 @@ import numpy as np
 from surgsplat.atomic import write_text_atomic
 from surgsplat.data.auto_tool_masks import AutoMaskConfig, auto_tool_masks
 from surgsplat.data.stream_source import ArrivedFrame, BadFrame, StreamSource, open_source
-from surgsplat.errors import SurgsplatError
+from surgsplat.errors import DataError, SurgsplatError
 from surgsplat.methods.config import MethodConfig
 from surgsplat.pipeline.stream_scene import LIVE_FILE, SCENE_DIR, StreamScene
 from surgsplat.pipeline.train import Note, quiet
@@ -78,6 +78,7 @@ class StreamResult:
     polish_steps: int
     stopped_by_user: bool
     streamed_until: float  # seconds from the stream's start to its end (before the polish)
+    source_rate: float | None  # frames per second the source played at, when it said
 
 
 END = object()
@@ -133,13 +134,18 @@ class _LiveLog:
     def __init__(self, path: Path):
         self.path = path
         self.handle = open(path, "w", buffering=1)
-        self.written: set[int] = set()
+        self.known = 0  # records 0..known-1 have been seen
+        self.pending: set[int] = set()  # seen, not yet written
 
     def update(self, records: dict[int, FrameRecord]) -> None:
-        for index, record in records.items():
-            if index not in self.written and (record.is_test or record.trained_at is not None):
+        """Write the lines of the frames of `records` (indices 0..N-1) trained on since."""
+        self.pending.update(range(self.known, len(records)))
+        self.known = len(records)
+        for index in sorted(self.pending):
+            record = records[index]
+            if record.is_test or record.trained_at is not None:
                 self.handle.write(json.dumps(record_line(record)) + "\n")
-                self.written.add(index)
+                self.pending.discard(index)
 
     def rewrite(self, records: list[FrameRecord]) -> None:
         self.handle.close()
@@ -157,12 +163,10 @@ def stream_run(config: MethodConfig, options: StreamOptions, note: Note = quiet,
     """Stream `options.source` into the run folder `options.out`, which the caller owns
     (`cli.train.new_run_folder`; see the module docstring); `on_step(stats, frames_so_far)`
     after every step."""
-    if options.on_bad_frame not in BAD_FRAME_ACTIONS:
-        raise SurgsplatError(f"--on-bad-frame must be one of {', '.join(BAD_FRAME_ACTIONS)}, "
-                             f"got {options.on_bad_frame!r}")
-    if options.tool_masks not in MASK_SOURCES:
-        raise SurgsplatError(f"--tool-masks must be one of {', '.join(MASK_SOURCES)}, got "
-                             f"{options.tool_masks!r}")
+    for option, value, choices in (("--on-bad-frame", options.on_bad_frame, BAD_FRAME_ACTIONS),
+                                   ("--tool-masks", options.tool_masks, MASK_SOURCES)):
+        if value not in choices:
+            raise SurgsplatError(f"{option} must be one of {', '.join(choices)}, got {value!r}")
     # PyTorch's optimisers import torch._dynamo when the first is built (about 2 s): import it
     # before the source starts, or the first frames wait for it
     importlib.import_module("torch._dynamo")
@@ -284,7 +288,7 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
                     on_step(stats, len(trainer.scene.frames))
                 if time.monotonic() - last_save >= options.checkpoint_seconds:
                     save()
-    except BadFrame as err:
+    except DataError as err:  # a bad frame (--on-bad-frame stop), or the source failed
         stopped_at = err
     else:
         stopped_at = None
@@ -292,7 +296,8 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
         raise stopped_at or SurgsplatError(f"{options.source}: the stream ended before its "
                                            "first frame")
     streamed_until = time.monotonic() - started
-    polish_steps = _polish(trainer, options.polish_seconds, recent, train_log, on_step)
+    polish_steps = 0 if stopped_by_user else _polish(trainer, options.polish_seconds, recent,
+                                                     train_log, on_step)
     trainer.finish()
     trainer.scene = scene_files.finish()
     train_log.close()
@@ -302,12 +307,13 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
     records = [trainer.records[i] for i in sorted(trainer.records)]
     log.rewrite(records)
     result = StreamResult(trainer, records, bad_frames, steps_streaming, polish_steps,
-                          stopped_by_user, streamed_until)
+                          stopped_by_user, streamed_until, source.camera.rate)
     write_text_atomic(out / STREAM_SUMMARY, json.dumps(stream_summary(result, options),
                                                        indent=2) + "\n")
     if stopped_at is not None:
-        raise SurgsplatError(f"{stopped_at}; the stream stopped there (--on-bad-frame stop), "
-                             f"and {out} holds the run of the {len(records)} frames before it")
+        why = " (--on-bad-frame stop)" if isinstance(stopped_at, BadFrame) else ""
+        raise SurgsplatError(f"{stopped_at}; the stream stopped there{why}, and {out} holds "
+                             f"the run of the {len(records)} frames before it")
     return result
 
 
@@ -344,7 +350,7 @@ def stream_summary(result: StreamResult, options: StreamOptions) -> dict:
     trainer = result.trainer
     return {
         "source": options.source, "method": trainer.config.name,
-        "rate": options.rate, "frames": len(result.records),
+        "rate": options.rate or result.source_rate, "frames": len(result.records),
         "train_frames": sum(not r.is_test for r in result.records),
         "bad_frames": result.bad_frames, "stopped_by_user": result.stopped_by_user,
         "steps_streaming": result.steps_streaming, "polish_steps": result.polish_steps,

@@ -104,7 +104,7 @@ class FrameRecord:
     is_test: bool
     trained_at: float | None = None  # seconds since the stream started; None = not yet
     psnr_arrival: float | None = None  # tissue PSNR of the model as the frame arrived
-    psnr_integrated: float | None = None  # at its last step among the replay's recent frames
+    psnr_integrated: float | None = None  # at its last step before it left the recent frames
     psnr_final: float | None = None
     added_gaussians: int = 0
 
@@ -261,8 +261,8 @@ class StreamTrainer(Trainer):
     def step(self) -> StepStats:
         """One step. A frame's first step gives its PSNR on arrival, and its render the pixels
         that get new Gaussians (`_add_gaussians`; not for the first frame, which the initial
-        points came from); while the frame is among the recent ones, its PSNR in a step is its
-        PSNR as integrated."""
+        points came from). Its PSNR in its first step, and in every later one while it is
+        among the recent frames, is its PSNR as integrated."""
         first = self._fresh[0].index if self._fresh else None
         stats = super().step()
         record = self.records[self._stepped]
@@ -271,20 +271,13 @@ class StreamTrainer(Trainer):
             if first > 0:
                 at_step_size = self._at_step_size(self.scene.frames[first])
                 record.added_gaussians = self._add_gaussians(at_step_size, self.last_output)
-        if self._stepped in self._train_indices[-self.stream.recent_frames:]:
+        if self._stepped == first or \
+                self._stepped in self._train_indices[-self.stream.recent_frames:]:
             record.psnr_integrated = stats.psnr
         return stats
 
-    def _at_step_size(self, frame: Frame) -> Frame:
-        factor = 1 if self._polish is not None else self.stream.downscale
-        if factor != self._downscale_factor:
-            self._downscaled.clear()
-            self._downscale_factor = factor
-        if factor == 1:
-            return frame
-        if frame.index not in self._downscaled:
-            self._downscaled[frame.index] = frame.downscaled(factor)
-        return self._downscaled[frame.index]
+    def downscale_factor(self) -> int:
+        return 1 if self._polish is not None else self.stream.downscale
 
     def lr_progress(self) -> float:
         held = self.stream.lr_progress

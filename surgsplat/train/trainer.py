@@ -283,10 +283,14 @@ class Trainer:
             frames[upcoming].prefetch()
         return frame
 
+    def downscale_factor(self) -> int:
+        """The factor this step's frame is downscaled by (`TrainConfig.downscale_at`)."""
+        return self.config.train.downscale_at(self.iteration)
+
     def _at_step_size(self, frame: Frame) -> Frame:
-        """`frame` at this step's size (`TrainConfig.downscale_at`); the downscaled frames of
-        one factor are kept until the factor changes."""
-        factor = self.config.train.downscale_at(self.iteration)
+        """`frame` at this step's size (`downscale_factor`); the downscaled frames of one
+        factor are kept until the factor changes."""
+        factor = self.downscale_factor()
         if factor != self._downscale_factor:
             self._downscaled.clear()
             self._downscale_factor = factor
