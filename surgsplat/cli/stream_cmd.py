@@ -26,8 +26,8 @@ def stream_command(
     out: Annotated[Path, typer.Option(help="Run folder to write.")] = Path("runs/stream"),
     method: Annotated[str | None, typer.Option(
         help=f"Method preset (default {DEFAULT_PRESET}). Its components must follow a clip "
-             "that grows (deform3dgs's do); another method is refused, naming the component "
-             "that cannot.")] = None,
+             "that grows; a method that cannot is refused, naming what stops it and the "
+             "methods that stream.")] = None,
     rate: Annotated[float | None, typer.Option(
         help="Play a video at this many frames per second instead of its own rate.",
         min=0.01)] = None,

@@ -34,15 +34,17 @@ from pathlib import Path
 
 import torch
 
-from surgsplat.data.scene import Frame, Scene
+from surgsplat.data.scene import MIN_SIZE, Frame, Scene
 from surgsplat.errors import SurgsplatError
 from surgsplat.image.pinhole import backproject
 from surgsplat.methods.config import MethodConfig
+from surgsplat.methods.registry import PRESETS
 from surgsplat.model.capabilities import Retimable
 from surgsplat.model.component import Component, FrameTime, SceneInfo, SetupContext
 from surgsplat.model.dynamic import render_frame
 from surgsplat.model.gaussians import GaussianModel
 from surgsplat.render.render import RenderOutput
+from surgsplat.train.checkpoint import build_components
 from surgsplat.train.per_gaussian import append_gaussians
 from surgsplat.train.trainer import StepStats, Trainer, declared_per_gaussian, tissue_psnr
 
@@ -81,18 +83,37 @@ class StreamConfig:
 
 def check_streamable(config: MethodConfig, components: Mapping[str, Component]) -> None:
     """SurgsplatError naming what keeps `config`'s method (built as `components`) from
-    training on a stream."""
+    training on a stream, and the methods that can."""
+    problem = stream_problem(config, components)
+    if problem is not None:
+        raise SurgsplatError(f"method {config.name!r} cannot stream: {problem} (methods that "
+                             f"stream: {', '.join(streamable_methods()) or 'none'})")
+
+
+def stream_problem(config: MethodConfig, components: Mapping[str, Component]) -> str | None:
+    """What keeps `config`'s method (built as `components`) from training on a stream: a
+    component that follows the clip's time but cannot follow its growth, or a loss term active
+    over a fraction of the run; None when nothing does."""
     for name, component in components.items():
         if component.reads_time and Retimable not in component.provides:
-            raise SurgsplatError(f"method {config.name!r} cannot stream: its component {name!r} "
-                                 "follows the clip's time but cannot follow a clip that grows "
-                                 "(use --method deform3dgs)")
+            return (f"its component {name!r} follows the clip's time but cannot follow a clip "
+                    "that grows")
     for name, weight in config.losses.items():
         if weight.weight > 0 and (weight.start > 0 or weight.stop < 1):
-            raise SurgsplatError(f"method {config.name!r} cannot stream: loss term {name!r} is "
-                                 f"active over a fraction of the run ({weight.start:g} to "
-                                 f"{weight.stop:g}), and a stream has no length; "
-                                 f"--set losses.{name}.start=0 --set losses.{name}.stop=1")
+            return (f"loss term {name!r} is active over a fraction of the run ({weight.start:g} "
+                    f"to {weight.stop:g}), and a stream has no length; --set "
+                    f"losses.{name}.start=0 --set losses.{name}.stop=1 lifts it")
+    return None
+
+
+def streamable_methods() -> list[str]:
+    """The registered methods that can train on a stream, as their presets stand."""
+    names = []
+    for name, preset in PRESETS.items():
+        config = preset.build().resolved(SceneInfo(DEFAULT_HORIZON, MIN_SIZE, MIN_SIZE, ()))
+        if stream_problem(config, build_components(config)) is None:
+            names.append(name)
+    return names
 
 
 @dataclass

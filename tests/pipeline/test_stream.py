@@ -16,14 +16,14 @@ import pytest
 
 from surgsplat.data.layout import DEPTH_DIR, IMAGES_DIR, MASKS_DIR, META_FILE, POSES_FILE
 from surgsplat.export.viewer import FOLLOW_SECONDS, RunViewer, view_image
-from surgsplat.methods.registry import PRESETS, method_config
+from surgsplat.methods.registry import DEFAULT_PRESET, PRESETS, method_config
 from surgsplat.model.component import SceneInfo
 from surgsplat.pipeline.evaluate import evaluate
 from surgsplat.pipeline.stream import STREAM_LOG, STREAM_SUMMARY, StreamOptions, stream_run
 from surgsplat.pipeline.stream_scene import LIVE_FILE, LiveFollower, load_live_run
 from surgsplat.train.checkpoint import build_components
 from surgsplat.train.run import LOCK_FILE, load_trained_run
-from surgsplat.train.stream import check_streamable
+from surgsplat.train.stream import check_streamable, streamable_methods
 
 RATE = 10.0
 """Frames per second the test's writer writes the small phantom at."""
@@ -156,13 +156,15 @@ def test_methods_that_cannot_follow_a_growing_clip_are_refused(small_phantom, tm
     assert result.returncode == 2, result
     line = one_error_line(result)
     assert "cannot stream" in line and "'deformation'" in line
+    assert f"methods that stream: {', '.join(streamable_methods())}" in line
 
 
-def test_deform3dgs_streams():
-    """The help of `surgsplat stream --method` says deform3dgs streams: its components follow a
-    growing clip and its loss terms have no window."""
-    config = PRESETS["deform3dgs"].build().resolved(SceneInfo(16, 160, 128, tuple(range(16))))
+def test_the_default_method_streams():
+    """The default method (`surgsplat stream` without --method) can stream: its components
+    follow a growing clip and its loss terms have no window."""
+    config = PRESETS[DEFAULT_PRESET].build().resolved(SceneInfo(16, 160, 128, tuple(range(16))))
     check_streamable(config, build_components(config))
+    assert DEFAULT_PRESET in streamable_methods()
 
 
 def test_view_follows_a_stream_in_progress(small_phantom, tmp_path):
