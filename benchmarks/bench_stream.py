@@ -232,7 +232,7 @@ def targets(rows: list[dict]) -> list[dict]:
 
 
 def plot(rows: list[dict], path: Path) -> None:
-    """Per scene: each rate's lag against arrival time, and the 5 fps stream's PSNR per frame
+    """Per scene: each rate's lag against arrival time, and the slowest rate's PSNR per frame
     (on arrival, once integrated, at the end)."""
     import matplotlib
 
@@ -242,12 +242,13 @@ def plot(rows: list[dict], path: Path) -> None:
     scenes = sorted({row["scene"] for row in rows})
     figure, axes = plt.subplots(len(scenes), 2, figsize=(11, 3.6 * len(scenes)), squeeze=False)
     for (lag_axis, psnr_axis), scene in zip(axes, scenes):
+        slowest = min(row["rate"] for row in rows if row["scene"] == scene)
         for row in (row for row in rows if row["scene"] == scene and row["seed"] == 0):
             trained = [entry for entry in row["log"] if entry["lag"] is not None]
             lag_axis.plot([entry["arrival"] for entry in trained],
                           [entry["lag"] for entry in trained], ".-",
                           label=f"{row['rate']:g} fps")
-            if row["rate"] == 5:
+            if row["rate"] == slowest:
                 train = [entry for entry in row["log"] if not entry["is_test"]]
                 for key, label in (("psnr_arrival", "on arrival"),
                                    ("psnr_integrated", "once integrated"),
@@ -256,7 +257,7 @@ def plot(rows: list[dict], path: Path) -> None:
                                    [entry[key] for entry in train], ".-", label=label)
         lag_axis.set(title=f"{scene}: lag of each training frame", xlabel="arrival (s)",
                      ylabel="lag (s)")
-        psnr_axis.set(title=f"{scene} at 5 fps: training frames' tissue PSNR",
+        psnr_axis.set(title=f"{scene} at {slowest:g} fps: training frames' tissue PSNR",
                       xlabel="frame", ylabel="PSNR (dB)")
         lag_axis.legend()
         psnr_axis.legend()

@@ -621,9 +621,10 @@ def stream_table(report: dict, results: str = "benchmarks/results") -> str:
             f"| {cell(row, 'forgetting_db', '.2f')} |")
     followed = ", ".join(f"{scene} {'none' if rate is None else f'{rate:g} fps'}"
                          for scene, rate in report["highest_rate_followed"].items())
-    lines += ["", f"Highest rate followed (the lag does not grow over the stream, its median "
-                  f"<= 1 s and its max <= 3 s, every frame trained on): {followed}."]
-    lines += ["", "| case | target | measured | bound | met |", "|---|---|---|---|---|"]
+    lines += ["", f"Highest of these rates followed (the lag does not grow over the stream, "
+                  f"its median <= 1 s and its max <= 3 s, every frame trained on): {followed}."]
+    if report["targets"]:  # the targets are at 5 fps
+        lines += ["", "| case | target | measured | bound | met |", "|---|---|---|---|---|"]
     for target in report["targets"]:
         spec = "d" if target["metric"] == "untrained_frames" else ".2f"
         lines.append(f"| {target['case']} | {target['rule']} | {cell(target, 'value', spec)} "
