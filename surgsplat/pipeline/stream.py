@@ -268,15 +268,19 @@ def _stream(config: MethodConfig, options: StreamOptions, source: StreamSource,
             while not ended or (trainer is not None and trainer.has_fresh_frames):
                 block = trainer is None or not trainer.has_frames_to_train
                 try:
-                    receive(items.get(timeout=0.05) if block else items.get_nowait())
-                    while True:
-                        receive(items.get_nowait())
+                    while not stopped_by_user:
+                        receive(items.get(timeout=0.05) if block else items.get_nowait())
+                        block = False
                 except queue.Empty:
                     pass
-                if stop_requested():
-                    stopped_by_user = True
-                    break
-                if trainer is None or not trainer.has_frames_to_train:
+                if stop_requested() and not stopped_by_user:
+                    # Ctrl-C: no frame is taken from here on; those taken get their step
+                    stopped_by_user = ended = True
+                if trainer is None:
+                    if stopped_by_user:
+                        break
+                    continue
+                if not trainer.has_frames_to_train:
                     continue
                 before = trainer.elapsed
                 stats = trainer.step()
