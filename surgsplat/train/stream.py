@@ -223,7 +223,8 @@ class StreamTrainer(Trainer):
         if room <= 0 or not wanted.any():
             return 0
         depth = frame.depth if frame.depth is not None else torch.zeros_like(rendered)
-        rendered = rendered.where(alpha > 0.5, torch.zeros_like(rendered))
+        # the render's depth where it is opaque enough to count, for pixels without a measure
+        rendered = rendered.where(alpha >= stream.add_alpha_below, torch.zeros_like(rendered))
         if not bool((rendered > 0).any()):
             return 0
         fallback = rendered.where(rendered > 0, rendered[rendered > 0].median())
